@@ -1,0 +1,431 @@
+//! One estimate from one depth frame: inverse depth, the robust depth range, the
+//! bounds of every model the frame needs, the chosen spacing and why. Only the
+//! terms the scene and the model need are computed, and the result says which.
+
+use super::depth::{DepthImage, Intrinsics};
+use super::inverse::{fill_grid, percentile_ranks, InvGrid, Selector};
+use super::occlusion::{scan, BoundaryParams, BoundaryStats};
+use super::params::{Decimation, EstimatorParams, Model};
+use super::plane::{fit, PlaneFit};
+use super::score::{best, score, PitchScore};
+use super::spacing::{
+    coverage_m, disparity_gain_px, mmds_m, occlusion_degree, occlusion_density_per_m, occlusion_term_m, sspa_m,
+};
+use thiserror::Error;
+
+/// Why a frame gives no estimate. The caller falls back to a conservative spacing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum NoEstimate {
+    /// Fewer valid pixels than `valid_fraction_min`.
+    TooFewValidPixels,
+    /// `|pitch|` above `pitch_max`: the camera looks along the track, where the
+    /// translation model of DESIGN §1 (`b⊥ = b·cos φ`) no longer holds.
+    PitchNearHorizontal,
+    /// The pitch is not a finite number (a corrupted attitude).
+    InvalidPitch,
+}
+
+impl NoEstimate {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            NoEstimate::TooFewValidPixels => "too_few_valid_pixels",
+            NoEstimate::PitchNearHorizontal => "pitch_near_horizontal",
+            NoEstimate::InvalidPitch => "invalid_pitch",
+        }
+    }
+}
+
+/// The bound that decided the chosen spacing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Bound {
+    Mmds,
+    Sspa,
+    Occlusion,
+    Coverage,
+    ConfigMin,
+    ConfigMax,
+    Fixed,
+}
+
+impl Bound {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Bound::Mmds => "mmds",
+            Bound::Sspa => "sspa",
+            Bound::Occlusion => "occlusion",
+            Bound::Coverage => "coverage",
+            Bound::ConfigMin => "config_min",
+            Bound::ConfigMax => "config_max",
+            Bound::Fixed => "fixed",
+        }
+    }
+}
+
+/// The terms computed for a frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Terms {
+    pub mmds: bool,
+    pub sspa: bool,
+    pub occlusion: bool,
+    pub coverage: bool,
+    pub score: bool,
+}
+
+impl Terms {
+    pub fn names(&self) -> Vec<&'static str> {
+        [
+            (self.mmds, "mmds"),
+            (self.sspa, "sspa"),
+            (self.occlusion, "occlusion"),
+            (self.coverage, "coverage"),
+            (self.score, "score"),
+        ]
+        .into_iter()
+        .filter_map(|(on, n)| on.then_some(n))
+        .collect()
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct InvDepth {
+    pub min_per_m: f64,
+    pub max_per_m: f64,
+    pub opt_per_m: f64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Spacings {
+    pub mmds_m: Option<f64>,
+    pub sspa_m: Option<f64>,
+    /// DESIGN's occlusion-aware spacing `min(MMDS, O_max/ρ)`; `None` without occlusion.
+    pub occlusion_m: Option<f64>,
+    pub coverage_m: Option<f64>,
+    /// The model's spacing before the config limits (`None`: nothing bounds it).
+    pub permissible_m: Option<f64>,
+    /// What the trigger uses: the permissible spacing within the config limits.
+    pub chosen_m: Option<f64>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Occlusion {
+    pub boundaries: u64,
+    pub lines: u64,
+    /// `D`, 1/m.
+    pub contrast_per_m: f64,
+    /// `ρ`, per metre of baseline.
+    pub density_per_m: f64,
+    /// `O(b)` at the chosen spacing.
+    pub degree: f64,
+    pub max_degree: f64,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct Estimate {
+    pub no_estimate: Option<NoEstimate>,
+    pub decimation: usize,
+    pub samples: usize,
+    pub valid_samples: usize,
+    pub sky_samples: usize,
+    pub valid_fraction: f64,
+    pub pitch_rad: f64,
+    pub inv_depth: Option<InvDepth>,
+    pub occlusion: Option<Occlusion>,
+    pub plane: Option<PlaneFit>,
+    pub spacing: Spacings,
+    pub active_bound: Option<Bound>,
+    pub terms: Terms,
+    pub pitch_scores: Vec<PitchScore>,
+    pub best_pitch: Option<PitchScore>,
+}
+
+impl Estimate {
+    pub fn is_ok(&self) -> bool {
+        self.no_estimate.is_none()
+    }
+}
+
+/// Calling errors (a frame and intrinsics that do not belong together); scene
+/// content never produces one.
+#[derive(Debug, Error, Clone, PartialEq)]
+pub enum EstimateError {
+    #[error("intrinsics are for {iw}x{ih} but the depth image is {dw}x{dh}")]
+    SizeMismatch { iw: usize, ih: usize, dw: usize, dh: usize },
+}
+
+/// Result of choosing a decimation level on a frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DecimationChoice {
+    pub level: usize,
+    pub budget: f64,
+    /// `(level, relative spacing error against level 1)`, finest first.
+    pub errors: Vec<(usize, f64)>,
+}
+
+/// Relative difference of two spacings; both unbounded is no error, one
+/// unbounded is an infinite one.
+pub fn relative_error(x: Option<f64>, reference: Option<f64>) -> f64 {
+    match (x, reference) {
+        (Some(a), Some(b)) => (a - b).abs() / b,
+        (None, None) => 0.0,
+        _ => f64::INFINITY,
+    }
+}
+
+/// An estimator with its scratch buffers, reused frame after frame.
+#[derive(Debug, Clone)]
+pub struct Estimator {
+    params: EstimatorParams,
+    grid: InvGrid,
+    score_grid: InvGrid,
+    selector: Selector,
+}
+
+impl Estimator {
+    /// `params` must have passed [`EstimatorParams::validate`].
+    pub fn new(params: EstimatorParams) -> Self {
+        Estimator {
+            params,
+            grid: InvGrid::default(),
+            score_grid: InvGrid::default(),
+            selector: Selector::default(),
+        }
+    }
+
+    pub fn params(&self) -> &EstimatorParams {
+        &self.params
+    }
+
+    /// The estimate at the configured decimation (`Auto` calibrates on this frame).
+    pub fn estimate(
+        &mut self,
+        image: &DepthImage,
+        intr: &Intrinsics,
+        pitch_rad: f64,
+    ) -> Result<(Estimate, Option<DecimationChoice>), EstimateError> {
+        match self.params.decimation.clone() {
+            Decimation::Fixed(n) => Ok((self.estimate_at(image, intr, pitch_rad, n)?, None)),
+            Decimation::Auto { budget, levels } => {
+                let (e, c) = self.calibrate(image, intr, pitch_rad, budget, &levels)?;
+                Ok((e, Some(c)))
+            }
+        }
+    }
+
+    /// Estimates at every level; returns the coarsest one whose permissible
+    /// spacing is within `budget` of full resolution (level 1 always qualifies).
+    pub fn calibrate(
+        &mut self,
+        image: &DepthImage,
+        intr: &Intrinsics,
+        pitch_rad: f64,
+        budget: f64,
+        levels: &[usize],
+    ) -> Result<(Estimate, DecimationChoice), EstimateError> {
+        let reference = self.estimate_at(image, intr, pitch_rad, 1)?;
+        let mut best = (1usize, reference.clone());
+        let mut errors = vec![(1usize, 0.0)];
+        let mut sorted: Vec<usize> = levels.iter().copied().filter(|&l| l > 1).collect();
+        sorted.sort_unstable();
+        sorted.dedup();
+        for level in sorted {
+            let e = self.estimate_at(image, intr, pitch_rad, level)?;
+            let err = if e.is_ok() != reference.is_ok() {
+                f64::INFINITY
+            } else {
+                relative_error(e.spacing.permissible_m, reference.spacing.permissible_m)
+            };
+            errors.push((level, err));
+            if err <= budget && level > best.0 {
+                best = (level, e);
+            }
+        }
+        Ok((
+            best.1,
+            DecimationChoice {
+                level: best.0,
+                budget,
+                errors,
+            },
+        ))
+    }
+
+    /// The estimate sampling every `step`-th pixel along and across track.
+    pub fn estimate_at(
+        &mut self,
+        image: &DepthImage,
+        intr: &Intrinsics,
+        pitch_rad: f64,
+        step: usize,
+    ) -> Result<Estimate, EstimateError> {
+        if intr.width() != image.width() || intr.height() != image.height() {
+            return Err(EstimateError::SizeMismatch {
+                iw: intr.width(),
+                ih: intr.height(),
+                dw: image.width(),
+                dh: image.height(),
+            });
+        }
+        let p = &self.params;
+        let step = step.max(1);
+        fill_grid(image, p.track_axis, step, &p.depth_range, &mut self.grid);
+        let samples = self.grid.samples();
+        let mut est = Estimate {
+            no_estimate: None,
+            decimation: step,
+            samples,
+            valid_samples: self.grid.valid,
+            sky_samples: self.grid.sky,
+            valid_fraction: self.grid.valid as f64 / samples as f64,
+            pitch_rad: if pitch_rad.is_finite() { pitch_rad } else { 0.0 },
+            inv_depth: None,
+            occlusion: None,
+            plane: None,
+            spacing: Spacings::default(),
+            active_bound: None,
+            terms: Terms::default(),
+            pitch_scores: Vec::new(),
+            best_pitch: None,
+        };
+        if !pitch_rad.is_finite() {
+            est.no_estimate = Some(NoEstimate::InvalidPitch);
+            return Ok(est);
+        }
+        if pitch_rad.abs() > p.pitch_max_rad {
+            est.no_estimate = Some(NoEstimate::PitchNearHorizontal);
+            return Ok(est);
+        }
+        if est.valid_fraction < p.valid_fraction_min || self.grid.valid == 0 {
+            est.no_estimate = Some(NoEstimate::TooFewValidPixels);
+            return Ok(est);
+        }
+        let geom = intr.track(p.track_axis);
+        let gain = disparity_gain_px(geom.focal_px, pitch_rad);
+        let c_tex = p.texture_bandwidth;
+        let dv = p.disparity_tolerance_px;
+
+        let n_range = (self.grid.valid - if p.sky_is_scene { 0 } else { self.grid.sky }) as u64;
+        if n_range > 0 {
+            let ranks = percentile_ranks(n_range, p.percentile_low, p.percentile_high);
+            if let Some([lo, hi]) = self.selector.select2(&self.grid.w, p.sky_is_scene, ranks) {
+                let (lo, hi) = (lo as f64, hi as f64);
+                est.inv_depth = Some(InvDepth {
+                    min_per_m: lo,
+                    max_per_m: hi,
+                    opt_per_m: 0.5 * (lo + hi),
+                });
+                est.terms.mmds = true;
+                est.terms.coverage = true;
+                est.spacing.mmds_m = mmds_m(gain, hi - lo, c_tex, dv);
+                est.spacing.coverage_m = coverage_m(p.overlap_min, geom.half_extent_px, gain, hi);
+            }
+        }
+
+        let mut density = 0.0;
+        let mut stats = BoundaryStats::default();
+        let bparams = BoundaryParams {
+            tau_abs_per_m: p.tau_abs_per_m,
+            tau_rel: p.tau_rel,
+            max_gap_px: p.max_gap_px,
+            sky_is_scene: p.sky_is_scene,
+        };
+        let want_occlusion = p.model == Model::Occlusion || p.with_occlusion;
+        if want_occlusion {
+            stats = scan(&self.grid, &bparams);
+            density = occlusion_density_per_m(p.beta, gain, stats.mean_contrast_per_m(), geom.half_extent_px);
+            // No boundary, no term: the result is then exactly MMDS.
+            if stats.boundaries > 0 && density > 0.0 {
+                est.terms.occlusion = true;
+                let term = occlusion_term_m(p.occlusion_max, density);
+                est.spacing.occlusion_m = min_opt(est.spacing.mmds_m, term);
+            }
+        }
+        if p.model == Model::Sspa || p.with_sspa {
+            est.terms.sspa = true;
+            est.plane = fit(&self.grid, &geom, pitch_rad, p.sspa_iterations, p.sspa_trim_sigma, &mut self.selector);
+            est.spacing.sspa_m = est
+                .plane
+                .and_then(|pl| sspa_m(gain, pl.delta_w_per_m, pl.extent_m, c_tex, dv));
+        }
+
+        let s = &est.spacing;
+        let candidates: &[(Bound, Option<f64>)] = match p.model {
+            Model::Occlusion => &[
+                (Bound::Mmds, s.mmds_m),
+                (Bound::Occlusion, s.occlusion_m),
+                (Bound::Coverage, s.coverage_m),
+            ],
+            Model::Mmds => &[(Bound::Mmds, s.mmds_m), (Bound::Coverage, s.coverage_m)],
+            Model::Sspa => &[(Bound::Sspa, s.sspa_m), (Bound::Coverage, s.coverage_m)],
+            Model::Fixed => &[(Bound::Fixed, Some(p.fixed_spacing_m))],
+        };
+        // Strictly smaller wins, so ties keep the earlier (MMDS before occlusion).
+        let mut permissible: Option<(Bound, f64)> = None;
+        for &(bound, value) in candidates {
+            if let Some(v) = value {
+                if permissible.is_none_or(|(_, cur)| v < cur) {
+                    permissible = Some((bound, v));
+                }
+            }
+        }
+        est.spacing.permissible_m = permissible.map(|(_, v)| v);
+        let (bound, chosen) = match permissible {
+            None => (Bound::ConfigMax, p.spacing_max_m),
+            Some((_, v)) if v < p.spacing_min_m => (Bound::ConfigMin, p.spacing_min_m),
+            Some((_, v)) if v > p.spacing_max_m => (Bound::ConfigMax, p.spacing_max_m),
+            Some((b, v)) => (b, v),
+        };
+        est.active_bound = Some(bound);
+        est.spacing.chosen_m = Some(chosen);
+
+        if want_occlusion {
+            est.occlusion = Some(Occlusion {
+                boundaries: stats.boundaries,
+                lines: stats.lines,
+                contrast_per_m: stats.mean_contrast_per_m(),
+                density_per_m: density,
+                degree: occlusion_degree(density, chosen),
+                max_degree: p.occlusion_max,
+            });
+            if let (Some(sp), true) = (&p.score, est.terms.occlusion) {
+                est.terms.score = true;
+                let score_step = sp.step_px.max(step);
+                let grid = if score_step == step {
+                    &self.grid
+                } else {
+                    fill_grid(image, p.track_axis, score_step, &p.depth_range, &mut self.score_grid);
+                    &self.score_grid
+                };
+                est.pitch_scores = score(
+                    grid,
+                    &geom,
+                    pitch_rad,
+                    &sp.candidates_rad,
+                    chosen,
+                    p.beta,
+                    &bparams,
+                    sp.min_coverage,
+                );
+                est.best_pitch = best(&est.pitch_scores, pitch_rad);
+            }
+        }
+        Ok(est)
+    }
+}
+
+fn min_opt(a: Option<f64>, b: Option<f64>) -> Option<f64> {
+    match (a, b) {
+        (Some(x), Some(y)) => Some(x.min(y)),
+        (x, None) => x,
+        (None, y) => y,
+    }
+}
+
+/// One-shot estimate with fresh buffers (tests, the command line).
+pub fn estimate(
+    image: &DepthImage,
+    intr: &Intrinsics,
+    pitch_rad: f64,
+    params: &EstimatorParams,
+) -> Result<(Estimate, Option<DecimationChoice>), EstimateError> {
+    Estimator::new(params.clone()).estimate(image, intr, pitch_rad)
+}

@@ -1,0 +1,19 @@
+//! The pure numerical core: depth frames in, permissible sampling spacing out.
+//! No tokio, no files, no devices, no clock: everything here is a plain function
+//! or a state machine over its arguments (a test enforces it).
+
+pub mod depth;
+pub mod estimate;
+pub mod inverse;
+pub mod occlusion;
+pub mod params;
+pub mod plane;
+pub mod score;
+pub mod spacing;
+
+pub use depth::{DepthData, DepthError, DepthImage, Intrinsics, IntrinsicsError, TrackAxis};
+pub use estimate::{estimate, Bound, Estimate, EstimateError, Estimator, NoEstimate};
+pub use params::{Decimation, EstimatorParams, Model, ParamError};
+
+#[cfg(test)]
+mod tests;

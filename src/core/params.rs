@@ -1,0 +1,280 @@
+//! Estimator parameters, typed and validated once: every later stage may take
+//! them as given. Defaults follow DESIGN §1; the reasons for each are in
+//! `docs/estimator.md`.
+
+use super::depth::TrackAxis;
+use super::inverse::DepthRange;
+use thiserror::Error;
+
+/// Which sampling model decides the spacing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Model {
+    /// Occlusion-aware ALF sampling (this work): `min(MMDS, O_max/ρ)`.
+    #[default]
+    Occlusion,
+    Mmds,
+    Sspa,
+    /// A fixed distance, as `TRIG_DISTANCE` / `CAM_TRIGG_DIST` would give.
+    Fixed,
+}
+
+impl Model {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Model::Occlusion => "occlusion",
+            Model::Mmds => "mmds",
+            Model::Sspa => "sspa",
+            Model::Fixed => "fixed",
+        }
+    }
+    pub fn parse(s: &str) -> Option<Model> {
+        Some(match s {
+            "occlusion" => Model::Occlusion,
+            "mmds" => Model::Mmds,
+            "sspa" => Model::Sspa,
+            "fixed" => Model::Fixed,
+            _ => return None,
+        })
+    }
+}
+
+/// How finely the depth map is sampled.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Decimation {
+    /// Every `n`-th pixel along and across track.
+    Fixed(usize),
+    /// The coarsest of `levels` whose spacing stays within `budget` (relative)
+    /// of full resolution on the frame it is calibrated on.
+    Auto { budget: f64, levels: Vec<usize> },
+}
+
+pub const DECIMATION_LEVELS: [usize; 5] = [1, 2, 4, 8, 16];
+
+/// The occlusion score (eq. 15) over candidate pitches.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ScoreParams {
+    pub candidates_rad: Vec<f64>,
+    /// Sampling stride for the score, pixels (at least the estimate's own).
+    pub step_px: usize,
+    /// Least fraction of a candidate's view this frame must cover.
+    pub min_coverage: f64,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct EstimatorParams {
+    pub model: Model,
+    /// Compute SSPA even when the model does not need it (comparisons).
+    pub with_sspa: bool,
+    /// Compute the occlusion term even when the model does not need it.
+    pub with_occlusion: bool,
+    pub score: Option<ScoreParams>,
+    /// `O_max`, the largest tolerated occlusion degree per step.
+    pub occlusion_max: f64,
+    /// `β`, the ray weight of eq. 2/6.
+    pub beta: f64,
+    /// `c_tex`, texture bandwidth as a fraction of the pixel Nyquist rate.
+    pub texture_bandwidth: f64,
+    /// `Δv`, the disparity tolerance, pixels.
+    pub disparity_tolerance_px: f64,
+    pub overlap_min: f64,
+    pub spacing_min_m: f64,
+    pub spacing_max_m: f64,
+    pub fixed_spacing_m: f64,
+    pub valid_fraction_min: f64,
+    pub percentile_low: f64,
+    pub percentile_high: f64,
+    pub tau_abs_per_m: f64,
+    pub tau_rel: f64,
+    pub max_gap_px: usize,
+    pub sky_is_scene: bool,
+    pub depth_range: DepthRange,
+    pub pitch_max_rad: f64,
+    pub track_axis: TrackAxis,
+    pub decimation: Decimation,
+    pub sspa_iterations: usize,
+    pub sspa_trim_sigma: f64,
+}
+
+impl Default for EstimatorParams {
+    fn default() -> Self {
+        EstimatorParams {
+            model: Model::Occlusion,
+            with_sspa: false,
+            with_occlusion: false,
+            score: Some(ScoreParams {
+                candidates_rad: (-9..=9).map(|k| (k as f64 * 5.0).to_radians()).collect(),
+                step_px: 8,
+                min_coverage: 0.5,
+            }),
+            occlusion_max: 0.01,
+            beta: 1.0,
+            texture_bandwidth: 1.0,
+            disparity_tolerance_px: 1.0,
+            overlap_min: 0.6,
+            spacing_min_m: 0.05,
+            spacing_max_m: 100.0,
+            fixed_spacing_m: 5.0,
+            valid_fraction_min: 0.2,
+            percentile_low: 0.005,
+            percentile_high: 0.995,
+            tau_abs_per_m: 1e-4,
+            tau_rel: 0.03,
+            max_gap_px: 8,
+            sky_is_scene: false,
+            depth_range: DepthRange::default(),
+            pitch_max_rad: 80f64.to_radians(),
+            track_axis: TrackAxis::Rows,
+            decimation: Decimation::Fixed(1),
+            sspa_iterations: 3,
+            sspa_trim_sigma: 2.5,
+        }
+    }
+}
+
+/// A parameter out of its range, named by its config path.
+#[derive(Debug, Error, Clone, PartialEq)]
+#[error("{field}: {message}")]
+pub struct ParamError {
+    pub field: &'static str,
+    pub message: String,
+}
+
+fn check(ok: bool, field: &'static str, message: impl FnOnce() -> String) -> Result<(), ParamError> {
+    if ok {
+        Ok(())
+    } else {
+        Err(ParamError {
+            field,
+            message: message(),
+        })
+    }
+}
+
+fn in_range(x: f64, lo: f64, hi: f64) -> bool {
+    x.is_finite() && x >= lo && x <= hi
+}
+
+impl EstimatorParams {
+    pub fn validate(&self) -> Result<(), ParamError> {
+        let p = self;
+        check(p.occlusion_max > 0.0 && p.occlusion_max <= 1.0, "sampling.occlusion_max", || {
+            format!("must be in (0, 1], got {}", p.occlusion_max)
+        })?;
+        check(p.beta > 0.0 && p.beta.is_finite(), "sampling.beta", || {
+            format!("must be finite and positive, got {}", p.beta)
+        })?;
+        check(
+            p.texture_bandwidth > 0.0 && p.texture_bandwidth <= 1.0,
+            "sampling.texture_bandwidth",
+            || format!("must be in (0, 1], got {}", p.texture_bandwidth),
+        )?;
+        check(
+            in_range(p.disparity_tolerance_px, 1e-3, 1e3),
+            "sampling.disparity_tolerance_px",
+            || format!("must be in [0.001, 1000] px, got {}", p.disparity_tolerance_px),
+        )?;
+        check(in_range(p.overlap_min, 0.0, 0.99), "sampling.overlap_min", || {
+            format!("must be in [0, 0.99], got {}", p.overlap_min)
+        })?;
+        check(
+            in_range(p.spacing_min_m, 1e-6, 1e6),
+            "sampling.spacing_min_m",
+            || format!("must be in [1e-6, 1e6] m, got {}", p.spacing_min_m),
+        )?;
+        check(
+            in_range(p.spacing_max_m, p.spacing_min_m, 1e6),
+            "sampling.spacing_max_m",
+            || {
+                format!(
+                    "must be at least spacing_min_m ({}) and at most 1e6 m, got {}",
+                    p.spacing_min_m, p.spacing_max_m
+                )
+            },
+        )?;
+        check(
+            in_range(p.fixed_spacing_m, 1e-6, 1e6),
+            "sampling.fixed_spacing_m",
+            || format!("must be in [1e-6, 1e6] m, got {}", p.fixed_spacing_m),
+        )?;
+        check(
+            in_range(p.valid_fraction_min, 0.0, 1.0),
+            "estimator.valid_fraction_min",
+            || format!("must be in [0, 1], got {}", p.valid_fraction_min),
+        )?;
+        check(in_range(p.percentile_low, 0.0, 0.5), "estimator.percentile_low", || {
+            format!("must be in [0, 0.5], got {}", p.percentile_low)
+        })?;
+        check(
+            in_range(p.percentile_high, 0.5, 1.0) && p.percentile_high >= p.percentile_low,
+            "estimator.percentile_high",
+            || format!("must be in [0.5, 1], got {}", p.percentile_high),
+        )?;
+        check(in_range(p.tau_abs_per_m, 0.0, 1e3), "estimator.tau_abs_per_m", || {
+            format!("must be in [0, 1000] 1/m, got {}", p.tau_abs_per_m)
+        })?;
+        check(in_range(p.tau_rel, 0.0, 10.0), "estimator.tau_rel", || {
+            format!("must be in [0, 10], got {}", p.tau_rel)
+        })?;
+        check(
+            p.tau_abs_per_m > 0.0 || p.tau_rel > 0.0,
+            "estimator.tau_abs_per_m",
+            || "tau_abs_per_m and tau_rel cannot both be 0: every rounding step would be an edge".into(),
+        )?;
+        check(
+            p.depth_range.min_m >= 0.0
+                && !p.depth_range.min_m.is_nan()
+                && !p.depth_range.max_m.is_nan()
+                && p.depth_range.max_m > p.depth_range.min_m,
+            "estimator.depth_max_m",
+            || {
+                format!(
+                    "valid depths need 0 <= depth_min_m < depth_max_m, got {} and {}",
+                    p.depth_range.min_m, p.depth_range.max_m
+                )
+            },
+        )?;
+        check(
+            in_range(p.pitch_max_rad.to_degrees(), 0.0, 89.0),
+            "estimator.pitch_max_deg",
+            || format!("must be in [0, 89] degrees, got {}", p.pitch_max_rad.to_degrees()),
+        )?;
+        match &p.decimation {
+            Decimation::Fixed(n) => check((1..=256).contains(n), "estimator.decimation", || {
+                format!("must be \"auto\" or a stride from 1 to 256, got {n}")
+            })?,
+            Decimation::Auto { budget, levels } => {
+                check(in_range(*budget, 0.0, 1.0), "estimator.decimation_budget", || {
+                    format!("must be in [0, 1], got {budget}")
+                })?;
+                check(
+                    !levels.is_empty() && levels.iter().all(|n| (1..=256).contains(n)),
+                    "estimator.decimation_levels",
+                    || "must list strides from 1 to 256".into(),
+                )?;
+            }
+        }
+        check((1..=100).contains(&p.sspa_iterations), "estimator.sspa_iterations", || {
+            format!("must be in [1, 100], got {}", p.sspa_iterations)
+        })?;
+        check(in_range(p.sspa_trim_sigma, 0.5, 100.0), "estimator.sspa_trim_sigma", || {
+            format!("must be in [0.5, 100], got {}", p.sspa_trim_sigma)
+        })?;
+        if let Some(s) = &p.score {
+            check(
+                !s.candidates_rad.is_empty()
+                    && s.candidates_rad
+                        .iter()
+                        .all(|c| c.is_finite() && c.abs() <= p.pitch_max_rad),
+                "score.pitch_candidates_deg",
+                || "candidates must be finite and within pitch_max_deg".into(),
+            )?;
+            check((1..=256).contains(&s.step_px), "score.decimation", || {
+                format!("must be in [1, 256], got {}", s.step_px)
+            })?;
+            check(in_range(s.min_coverage, 0.0, 1.0), "score.min_coverage", || {
+                format!("must be in [0, 1], got {}", s.min_coverage)
+            })?;
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,1 @@
+//! Depth files into depth images (outside the core: this module touches files).

@@ -1,0 +1,6 @@
+//! alfd: occlusion-aware light-field sampling for drone captures.
+//! `core` is pure numerics; everything else is the edges (files, devices, links).
+
+pub mod core;
+pub mod depthio;
+pub mod synth;
