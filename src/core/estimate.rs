@@ -9,7 +9,8 @@ use super::params::{Decimation, EstimatorParams, Model};
 use super::plane::{fit, PlaneFit};
 use super::score::{best, score, PitchScore};
 use super::spacing::{
-    coverage_m, disparity_gain_px, mmds_m, occlusion_degree, occlusion_density_per_m, occlusion_term_m, sspa_m,
+    coverage_m, disparity_gain_px, mmds_m, occlusion_degree, occlusion_density_per_m,
+    occlusion_term_m, sspa_m,
 };
 use thiserror::Error;
 
@@ -149,7 +150,12 @@ impl Estimate {
 #[derive(Debug, Error, Clone, PartialEq)]
 pub enum EstimateError {
     #[error("intrinsics are for {iw}x{ih} but the depth image is {dw}x{dh}")]
-    SizeMismatch { iw: usize, ih: usize, dw: usize, dh: usize },
+    SizeMismatch {
+        iw: usize,
+        ih: usize,
+        dw: usize,
+        dh: usize,
+    },
 }
 
 /// Result of choosing a decimation level on a frame.
@@ -276,7 +282,11 @@ impl Estimator {
             valid_samples: self.grid.valid,
             sky_samples: self.grid.sky,
             valid_fraction: self.grid.valid as f64 / samples as f64,
-            pitch_rad: if pitch_rad.is_finite() { pitch_rad } else { 0.0 },
+            pitch_rad: if pitch_rad.is_finite() {
+                pitch_rad
+            } else {
+                0.0
+            },
             inv_depth: None,
             occlusion: None,
             plane: None,
@@ -331,7 +341,12 @@ impl Estimator {
         let want_occlusion = p.model == Model::Occlusion || p.with_occlusion;
         if want_occlusion {
             stats = scan(&self.grid, &bparams);
-            density = occlusion_density_per_m(p.beta, gain, stats.mean_contrast_per_m(), geom.half_extent_px);
+            density = occlusion_density_per_m(
+                p.beta,
+                gain,
+                stats.mean_contrast_per_m(),
+                geom.half_extent_px,
+            );
             // No boundary, no term: the result is then exactly MMDS.
             if stats.boundaries > 0 && density > 0.0 {
                 est.terms.occlusion = true;
@@ -341,7 +356,14 @@ impl Estimator {
         }
         if p.model == Model::Sspa || p.with_sspa {
             est.terms.sspa = true;
-            est.plane = fit(&self.grid, &geom, pitch_rad, p.sspa_iterations, p.sspa_trim_sigma, &mut self.selector);
+            est.plane = fit(
+                &self.grid,
+                &geom,
+                pitch_rad,
+                p.sspa_iterations,
+                p.sspa_trim_sigma,
+                &mut self.selector,
+            );
             est.spacing.sspa_m = est
                 .plane
                 .and_then(|pl| sspa_m(gain, pl.delta_w_per_m, pl.extent_m, c_tex, dv));
@@ -392,7 +414,13 @@ impl Estimator {
                 let grid = if score_step == step {
                     &self.grid
                 } else {
-                    fill_grid(image, p.track_axis, score_step, &p.depth_range, &mut self.score_grid);
+                    fill_grid(
+                        image,
+                        p.track_axis,
+                        score_step,
+                        &p.depth_range,
+                        &mut self.score_grid,
+                    );
                     &self.score_grid
                 };
                 est.pitch_scores = score(

@@ -181,7 +181,12 @@ impl Selector {
     /// of a slice whose values are `INVALID`, `SKY` or positive. `floor` is
     /// `0.0` to include the sky, or the smallest positive `f32` to exclude it.
     /// Returns `None` when fewer values pass than a rank needs.
-    pub fn select2(&mut self, values: &[f32], include_sky: bool, ranks: [u64; 2]) -> Option<[f32; 2]> {
+    pub fn select2(
+        &mut self,
+        values: &[f32],
+        include_sky: bool,
+        ranks: [u64; 2],
+    ) -> Option<[f32; 2]> {
         // Level 1: top 11 bits. Negative values (INVALID) fall in bins >= 1024.
         self.hist.iter_mut().for_each(|c| *c = 0);
         for &w in values {

@@ -1,5 +1,5 @@
 //! The pure numerical core: depth frames in, permissible sampling spacing out.
-//! No tokio, no files, no devices, no clock: everything here is a plain function
+//! No async runtime, no files, no devices, no clock: everything here is a plain function
 //! or a state machine over its arguments (a test enforces it).
 
 pub mod depth;

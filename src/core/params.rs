@@ -139,7 +139,11 @@ pub struct ParamError {
     pub message: String,
 }
 
-fn check(ok: bool, field: &'static str, message: impl FnOnce() -> String) -> Result<(), ParamError> {
+fn check(
+    ok: bool,
+    field: &'static str,
+    message: impl FnOnce() -> String,
+) -> Result<(), ParamError> {
     if ok {
         Ok(())
     } else {
@@ -157,9 +161,11 @@ fn in_range(x: f64, lo: f64, hi: f64) -> bool {
 impl EstimatorParams {
     pub fn validate(&self) -> Result<(), ParamError> {
         let p = self;
-        check(p.occlusion_max > 0.0 && p.occlusion_max <= 1.0, "sampling.occlusion_max", || {
-            format!("must be in (0, 1], got {}", p.occlusion_max)
-        })?;
+        check(
+            p.occlusion_max > 0.0 && p.occlusion_max <= 1.0,
+            "sampling.occlusion_max",
+            || format!("must be in (0, 1], got {}", p.occlusion_max),
+        )?;
         check(p.beta > 0.0 && p.beta.is_finite(), "sampling.beta", || {
             format!("must be finite and positive, got {}", p.beta)
         })?;
@@ -171,11 +177,18 @@ impl EstimatorParams {
         check(
             in_range(p.disparity_tolerance_px, 1e-3, 1e3),
             "sampling.disparity_tolerance_px",
-            || format!("must be in [0.001, 1000] px, got {}", p.disparity_tolerance_px),
+            || {
+                format!(
+                    "must be in [0.001, 1000] px, got {}",
+                    p.disparity_tolerance_px
+                )
+            },
         )?;
-        check(in_range(p.overlap_min, 0.0, 0.99), "sampling.overlap_min", || {
-            format!("must be in [0, 0.99], got {}", p.overlap_min)
-        })?;
+        check(
+            in_range(p.overlap_min, 0.0, 0.99),
+            "sampling.overlap_min",
+            || format!("must be in [0, 0.99], got {}", p.overlap_min),
+        )?;
         check(
             in_range(p.spacing_min_m, 1e-6, 1e6),
             "sampling.spacing_min_m",
@@ -201,24 +214,31 @@ impl EstimatorParams {
             "estimator.valid_fraction_min",
             || format!("must be in [0, 1], got {}", p.valid_fraction_min),
         )?;
-        check(in_range(p.percentile_low, 0.0, 0.5), "estimator.percentile_low", || {
-            format!("must be in [0, 0.5], got {}", p.percentile_low)
-        })?;
+        check(
+            in_range(p.percentile_low, 0.0, 0.5),
+            "estimator.percentile_low",
+            || format!("must be in [0, 0.5], got {}", p.percentile_low),
+        )?;
         check(
             in_range(p.percentile_high, 0.5, 1.0) && p.percentile_high >= p.percentile_low,
             "estimator.percentile_high",
             || format!("must be in [0.5, 1], got {}", p.percentile_high),
         )?;
-        check(in_range(p.tau_abs_per_m, 0.0, 1e3), "estimator.tau_abs_per_m", || {
-            format!("must be in [0, 1000] 1/m, got {}", p.tau_abs_per_m)
-        })?;
+        check(
+            in_range(p.tau_abs_per_m, 0.0, 1e3),
+            "estimator.tau_abs_per_m",
+            || format!("must be in [0, 1000] 1/m, got {}", p.tau_abs_per_m),
+        )?;
         check(in_range(p.tau_rel, 0.0, 10.0), "estimator.tau_rel", || {
             format!("must be in [0, 10], got {}", p.tau_rel)
         })?;
         check(
             p.tau_abs_per_m > 0.0 || p.tau_rel > 0.0,
             "estimator.tau_abs_per_m",
-            || "tau_abs_per_m and tau_rel cannot both be 0: every rounding step would be an edge".into(),
+            || {
+                "tau_abs_per_m and tau_rel cannot both be 0: every rounding step would be an edge"
+                    .into()
+            },
         )?;
         check(
             p.depth_range.min_m >= 0.0
@@ -236,16 +256,23 @@ impl EstimatorParams {
         check(
             in_range(p.pitch_max_rad.to_degrees(), 0.0, 89.0),
             "estimator.pitch_max_deg",
-            || format!("must be in [0, 89] degrees, got {}", p.pitch_max_rad.to_degrees()),
+            || {
+                format!(
+                    "must be in [0, 89] degrees, got {}",
+                    p.pitch_max_rad.to_degrees()
+                )
+            },
         )?;
         match &p.decimation {
             Decimation::Fixed(n) => check((1..=256).contains(n), "estimator.decimation", || {
                 format!("must be \"auto\" or a stride from 1 to 256, got {n}")
             })?,
             Decimation::Auto { budget, levels } => {
-                check(in_range(*budget, 0.0, 1.0), "estimator.decimation_budget", || {
-                    format!("must be in [0, 1], got {budget}")
-                })?;
+                check(
+                    in_range(*budget, 0.0, 1.0),
+                    "estimator.decimation_budget",
+                    || format!("must be in [0, 1], got {budget}"),
+                )?;
                 check(
                     !levels.is_empty() && levels.iter().all(|n| (1..=256).contains(n)),
                     "estimator.decimation_levels",
@@ -253,12 +280,16 @@ impl EstimatorParams {
                 )?;
             }
         }
-        check((1..=100).contains(&p.sspa_iterations), "estimator.sspa_iterations", || {
-            format!("must be in [1, 100], got {}", p.sspa_iterations)
-        })?;
-        check(in_range(p.sspa_trim_sigma, 0.5, 100.0), "estimator.sspa_trim_sigma", || {
-            format!("must be in [0.5, 100], got {}", p.sspa_trim_sigma)
-        })?;
+        check(
+            (1..=100).contains(&p.sspa_iterations),
+            "estimator.sspa_iterations",
+            || format!("must be in [1, 100], got {}", p.sspa_iterations),
+        )?;
+        check(
+            in_range(p.sspa_trim_sigma, 0.5, 100.0),
+            "estimator.sspa_trim_sigma",
+            || format!("must be in [0.5, 100], got {}", p.sspa_trim_sigma),
+        )?;
         if let Some(s) = &p.score {
             check(
                 !s.candidates_rad.is_empty()
@@ -271,9 +302,11 @@ impl EstimatorParams {
             check((1..=256).contains(&s.step_px), "score.decimation", || {
                 format!("must be in [1, 256], got {}", s.step_px)
             })?;
-            check(in_range(s.min_coverage, 0.0, 1.0), "score.min_coverage", || {
-                format!("must be in [0, 1], got {}", s.min_coverage)
-            })?;
+            check(
+                in_range(s.min_coverage, 0.0, 1.0),
+                "score.min_coverage",
+                || format!("must be in [0, 1], got {}", s.min_coverage),
+            )?;
         }
         Ok(())
     }

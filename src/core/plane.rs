@@ -111,7 +111,8 @@ pub fn fit(
     let x1 = (geom.along_px as f64 - geom.c_along_px) / f;
     let y0 = -geom.c_across_px / f;
     let y1 = (geom.across_px as f64 - geom.c_across_px) / f;
-    let corners = [(x0, y0), (x0, y1), (x1, y0), (x1, y1)].map(|(x, y)| (a * x + b * y + c).max(0.0));
+    let corners =
+        [(x0, y0), (x0, y1), (x1, y0), (x1, y1)].map(|(x, y)| (a * x + b * y + c).max(0.0));
     let wmax = corners.iter().cloned().fold(0.0, f64::max);
     let wmin = corners.iter().cloned().fold(f64::INFINITY, f64::min);
     let (sp, cp) = pitch_rad.sin_cos();

@@ -71,7 +71,14 @@ pub fn score(
         }
         let mut stats = BoundaryStats::default();
         for a in 0..grid.lines {
-            scan_line(grid.line(a), grid.step, params, Some(&scale), Some(&keep), &mut stats);
+            scan_line(
+                grid.line(a),
+                grid.step,
+                params,
+                Some(&scale),
+                Some(&keep),
+                &mut stats,
+            );
         }
         let rho = occlusion_density_per_m(
             beta,

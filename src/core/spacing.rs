@@ -21,7 +21,7 @@ pub fn disparity_gain_px(focal_px: f64, pitch_rad: f64) -> f64 {
 /// MMDS (Chai et al.): `b = 2·Δv / (f·cos φ·(w_max − w_min)·c_tex)`.
 pub fn mmds_m(gain_px: f64, delta_w_per_m: f64, c_tex: f64, delta_v_px: f64) -> Option<f64> {
     let denom = gain_px * delta_w_per_m * c_tex;
-    if !(denom > 0.0) {
+    if denom.is_nan() || denom <= 0.0 {
         return None;
     }
     bounded(2.0 * delta_v_px / denom)
@@ -38,7 +38,7 @@ pub fn sspa_m(
 ) -> Option<f64> {
     let extent_term = if extent_m > 0.0 { 4.0 / extent_m } else { 0.0 };
     let denom = gain_px * delta_w_plane_per_m.max(0.0) * c_tex / delta_v_px + extent_term;
-    if !(denom > 0.0) {
+    if denom.is_nan() || denom <= 0.0 {
         return None;
     }
     bounded(2.0 / denom)
@@ -46,7 +46,12 @@ pub fn sspa_m(
 
 /// Occlusion density `ρ = β·f·cos φ·D / (2·v_m)`, per metre of baseline.
 #[inline]
-pub fn occlusion_density_per_m(beta: f64, gain_px: f64, contrast_per_m: f64, half_extent_px: f64) -> f64 {
+pub fn occlusion_density_per_m(
+    beta: f64,
+    gain_px: f64,
+    contrast_per_m: f64,
+    half_extent_px: f64,
+) -> f64 {
     let rho = beta * gain_px * contrast_per_m / (2.0 * half_extent_px);
     if rho.is_finite() && rho > 0.0 {
         rho
@@ -57,7 +62,7 @@ pub fn occlusion_density_per_m(beta: f64, gain_px: f64, contrast_per_m: f64, hal
 
 /// The occlusion bound `O_max / ρ` (`None` without occlusion).
 pub fn occlusion_term_m(occlusion_max: f64, density_per_m: f64) -> Option<f64> {
-    if !(density_per_m > 0.0) {
+    if density_per_m.is_nan() || density_per_m <= 0.0 {
         return None;
     }
     bounded(occlusion_max / density_per_m)
@@ -76,9 +81,14 @@ pub fn occlusion_degree(density_per_m: f64, spacing_m: f64) -> f64 {
 
 /// Coverage: consecutive frames overlap by at least `overlap_min` at the
 /// nearest depth: `b ≤ (1 − overlap_min)·2·v_m / (f·cos φ·w_max)`.
-pub fn coverage_m(overlap_min: f64, half_extent_px: f64, gain_px: f64, w_max_per_m: f64) -> Option<f64> {
+pub fn coverage_m(
+    overlap_min: f64,
+    half_extent_px: f64,
+    gain_px: f64,
+    w_max_per_m: f64,
+) -> Option<f64> {
     let denom = gain_px * w_max_per_m;
-    if !(denom > 0.0) {
+    if denom.is_nan() || denom <= 0.0 {
         return None;
     }
     bounded((1.0 - overlap_min) * 2.0 * half_extent_px / denom)

@@ -1,6 +1,9 @@
 //! Unit tests at each formula's extremes. Expected values are derived by hand
 //! in the comments; f32 storage of inverse depth limits agreement to ~1e-7.
 
+// Tests change one parameter of the defaults at a time, on purpose.
+#![allow(clippy::field_reassign_with_default)]
+
 use super::depth::*;
 use super::estimate::*;
 use super::inverse::*;
@@ -18,7 +21,9 @@ fn metres(w: usize, h: usize, d: Vec<f32>) -> DepthImage {
 /// `h` rows of `w` pixels, each row alternating stripes of depth `d1` and `d2`
 /// every `stripe` pixels (one stripe only if `stripe >= w`).
 fn stripes(w: usize, h: usize, stripe: usize, d1: f32, d2: f32) -> DepthImage {
-    let row: Vec<f32> = (0..w).map(|i| if (i / stripe) % 2 == 0 { d1 } else { d2 }).collect();
+    let row: Vec<f32> = (0..w)
+        .map(|i| if (i / stripe) % 2 == 0 { d1 } else { d2 })
+        .collect();
     metres(w, h, row.repeat(h))
 }
 
@@ -30,7 +35,9 @@ fn no_score() -> EstimatorParams {
 }
 
 fn run(img: &DepthImage, intr: &Intrinsics, pitch: f64, p: &EstimatorParams) -> Estimate {
-    Estimator::new(p.clone()).estimate_at(img, intr, pitch, 1).unwrap()
+    Estimator::new(p.clone())
+        .estimate_at(img, intr, pitch, 1)
+        .unwrap()
 }
 
 // ---- spacing formulas ----
@@ -42,11 +49,25 @@ fn mmds_two_level_design_example() {
     let b = mmds_m(disparity_gain_px(465.0, 0.0), 0.025, 1.0, 1.0).unwrap();
     assert!(close(b, 2.0 / 11.625, 1e-15), "{b}");
     // Pitch 60°: cos = 0.5 doubles it.
-    let b60 = mmds_m(disparity_gain_px(465.0, 60f64.to_radians()), 0.025, 1.0, 1.0).unwrap();
+    let b60 = mmds_m(
+        disparity_gain_px(465.0, 60f64.to_radians()),
+        0.025,
+        1.0,
+        1.0,
+    )
+    .unwrap();
     assert!(close(b60, 4.0 / 11.625, 1e-12));
     // Half the texture bandwidth or twice the disparity tolerance: twice the spacing.
-    assert!(close(mmds_m(465.0, 0.025, 0.5, 1.0).unwrap(), 2.0 * b, 1e-15));
-    assert!(close(mmds_m(465.0, 0.025, 1.0, 2.0).unwrap(), 2.0 * b, 1e-15));
+    assert!(close(
+        mmds_m(465.0, 0.025, 0.5, 1.0).unwrap(),
+        2.0 * b,
+        1e-15
+    ));
+    assert!(close(
+        mmds_m(465.0, 0.025, 1.0, 2.0).unwrap(),
+        2.0 * b,
+        1e-15
+    ));
 }
 
 #[test]
@@ -68,7 +89,11 @@ fn sspa_plane_and_extent_terms() {
     // No slant and an infinite plane: nothing bounds it.
     assert_eq!(sspa_m(465.0, 0.0, f64::INFINITY, 1.0, 1.0), None);
     // No slant, L = 10 m: 2/(4/10) = 5 m, the sinc main lobe alone.
-    assert!(close(sspa_m(465.0, 0.0, 10.0, 1.0, 1.0).unwrap(), 5.0, 1e-15));
+    assert!(close(
+        sspa_m(465.0, 0.0, 10.0, 1.0, 1.0).unwrap(),
+        5.0,
+        1e-15
+    ));
     // Slant only: same as MMDS with Δw_plane.
     assert!(close(
         sspa_m(465.0, 0.025, f64::INFINITY, 1.0, 1.0).unwrap(),
@@ -76,7 +101,11 @@ fn sspa_plane_and_extent_terms() {
         1e-15
     ));
     // Both: 2/(465·0.025 + 0.4) = 2/12.025.
-    assert!(close(sspa_m(465.0, 0.025, 10.0, 1.0, 1.0).unwrap(), 2.0 / 12.025, 1e-15));
+    assert!(close(
+        sspa_m(465.0, 0.025, 10.0, 1.0, 1.0).unwrap(),
+        2.0 / 12.025,
+        1e-15
+    ));
 }
 
 #[test]
@@ -118,7 +147,9 @@ fn radix_selection_equals_sorting() {
     for n in [1usize, 2, 3, 17, 1000, 4096] {
         let mut v = Vec::with_capacity(n);
         for _ in 0..n {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             let u = (s >> 33) as u32;
             v.push(match u % 10 {
                 0 => INVALID,
@@ -142,7 +173,10 @@ fn radix_selection_equals_sorting() {
             let got = sel.select2(&v, include_sky, [lo, hi]).unwrap();
             assert_eq!(got, [good[lo as usize], good[hi as usize]], "n={n}");
             let last = good.len() as u64 - 1;
-            assert_eq!(sel.select2(&v, include_sky, [0, last]).unwrap(), [good[0], good[last as usize]]);
+            assert_eq!(
+                sel.select2(&v, include_sky, [0, last]).unwrap(),
+                [good[0], good[last as usize]]
+            );
         }
     }
 }
@@ -174,7 +208,10 @@ fn two_level_scene_gives_design_mmds_and_occlusion_spacings() {
         let mmds = 2.0 / (f * phi.cos() * dw);
         let occ = 0.001 * 640.0 / (f * phi.cos() * dw);
         assert!(close(e.spacing.mmds_m.unwrap(), mmds, 1e-12), "{pitch_deg}");
-        assert!(close(e.spacing.occlusion_m.unwrap(), occ, 1e-12), "{pitch_deg}");
+        assert!(
+            close(e.spacing.occlusion_m.unwrap(), occ, 1e-12),
+            "{pitch_deg}"
+        );
         assert_eq!(e.active_bound, Some(Bound::Occlusion));
         assert_eq!(e.spacing.chosen_m, e.spacing.occlusion_m);
         let o = e.occlusion.unwrap();
@@ -222,7 +259,10 @@ fn scene_without_boundaries_is_exactly_mmds_and_has_no_occlusion_term() {
     assert_eq!(e.occlusion.unwrap().boundaries, 0);
     assert!(!e.terms.occlusion && !e.terms.score);
     assert_eq!(e.spacing.occlusion_m, None);
-    assert_eq!(e.spacing.chosen_m.unwrap().to_bits(), m.spacing.chosen_m.unwrap().to_bits());
+    assert_eq!(
+        e.spacing.chosen_m.unwrap().to_bits(),
+        m.spacing.chosen_m.unwrap().to_bits()
+    );
     assert_eq!(e.active_bound, m.active_bound);
     assert_eq!(e.best_pitch, None);
 }
@@ -234,11 +274,18 @@ fn pitch_extremes_are_typed_outcomes() {
     let p = EstimatorParams::default();
     for deg in [80.0001f64, 89.999, 90.0, -90.0, 135.0, 1e9] {
         let e = run(&img, &intr, deg.to_radians(), &p);
-        assert_eq!(e.no_estimate, Some(NoEstimate::PitchNearHorizontal), "{deg}");
+        assert_eq!(
+            e.no_estimate,
+            Some(NoEstimate::PitchNearHorizontal),
+            "{deg}"
+        );
         assert_eq!(e.spacing.chosen_m, None);
     }
     for bad in [f64::NAN, f64::INFINITY] {
-        assert_eq!(run(&img, &intr, bad, &p).no_estimate, Some(NoEstimate::InvalidPitch));
+        assert_eq!(
+            run(&img, &intr, bad, &p).no_estimate,
+            Some(NoEstimate::InvalidPitch)
+        );
     }
     // At the limit (80°) an answer, finite and positive: cos 80° = 0.17 widens it.
     let e = run(&img, &intr, 80f64.to_radians(), &p);
@@ -249,7 +296,12 @@ fn pitch_extremes_are_typed_outcomes() {
 #[test]
 fn all_sky_falls_to_the_config_maximum() {
     let intr = Intrinsics::from_hfov_deg(32, 8, 90.0, None).unwrap();
-    let e = run(&metres(32, 8, vec![f32::INFINITY; 256]), &intr, 0.0, &EstimatorParams::default());
+    let e = run(
+        &metres(32, 8, vec![f32::INFINITY; 256]),
+        &intr,
+        0.0,
+        &EstimatorParams::default(),
+    );
     assert!(e.is_ok());
     assert_eq!(e.inv_depth, None);
     assert_eq!(e.active_bound, Some(Bound::ConfigMax));
@@ -267,7 +319,12 @@ fn flat_scene_is_bounded_by_coverage() {
     // Nadir over flat ground at 40 m: Δw = 0, MMDS unbounded; coverage
     // 0.4·W/(f/40) = 0.4·2·40·tan(45°) = 32 m at hfov 90°.
     let intr = Intrinsics::from_hfov_deg(100, 10, 90.0, None).unwrap();
-    let e = run(&metres(100, 10, vec![40.0; 1000]), &intr, 0.0, &EstimatorParams::default());
+    let e = run(
+        &metres(100, 10, vec![40.0; 1000]),
+        &intr,
+        0.0,
+        &EstimatorParams::default(),
+    );
     assert_eq!(e.spacing.mmds_m, None);
     assert!(close(e.spacing.coverage_m.unwrap(), 32.0, 1e-6));
     assert_eq!(e.active_bound, Some(Bound::Coverage));
@@ -276,13 +333,27 @@ fn flat_scene_is_bounded_by_coverage() {
 #[test]
 fn single_pixel_and_invalid_frames() {
     let intr = Intrinsics::from_hfov_deg(1, 1, 60.0, None).unwrap();
-    let e = run(&metres(1, 1, vec![10.0]), &intr, 0.0, &EstimatorParams::default());
+    let e = run(
+        &metres(1, 1, vec![10.0]),
+        &intr,
+        0.0,
+        &EstimatorParams::default(),
+    );
     assert!(e.is_ok());
     assert_eq!(e.occlusion.unwrap().boundaries, 0);
     // f = 0.5/tan 30° = 0.866 px: coverage 0.4·1/(0.866·0.1) = 4.62 m.
-    assert!(close(e.spacing.coverage_m.unwrap(), 0.4 / (0.5 / 30f64.to_radians().tan() * 0.1), 1e-6));
+    assert!(close(
+        e.spacing.coverage_m.unwrap(),
+        0.4 / (0.5 / 30f64.to_radians().tan() * 0.1),
+        1e-6
+    ));
     for bad in [f32::NAN, 0.0, -3.0, f32::NEG_INFINITY] {
-        let e = run(&metres(1, 1, vec![bad]), &intr, 0.0, &EstimatorParams::default());
+        let e = run(
+            &metres(1, 1, vec![bad]),
+            &intr,
+            0.0,
+            &EstimatorParams::default(),
+        );
         assert_eq!(e.no_estimate, Some(NoEstimate::TooFewValidPixels), "{bad}");
         assert_eq!(e.valid_samples, 0);
     }
@@ -299,19 +370,36 @@ fn single_pixel_and_invalid_frames() {
 fn extreme_fov_focal_and_depth_stay_finite() {
     for (w, fov) in [(640usize, 1.0f64), (640, 170.0), (1, 1.0), (1, 170.0)] {
         let intr = Intrinsics::from_hfov_deg(w, 2, fov, None).unwrap();
-        for (d1, d2) in [(0.001f32, 0.002f32), (1e6, 5e5), (0.001, 1e6), (1.0, f32::INFINITY)] {
+        for (d1, d2) in [
+            (0.001f32, 0.002f32),
+            (1e6, 5e5),
+            (0.001, 1e6),
+            (1.0, f32::INFINITY),
+        ] {
             let img = stripes(w, 2, (w / 2).max(1), d1, d2);
             let e = run(&img, &intr, 0.3, &EstimatorParams::default());
             let c = e.spacing.chosen_m.unwrap();
             assert!(c.is_finite() && c > 0.0, "fov {fov} d {d1}/{d2}: {c}");
-            for x in [e.spacing.mmds_m, e.spacing.occlusion_m, e.spacing.coverage_m].into_iter().flatten() {
+            for x in [
+                e.spacing.mmds_m,
+                e.spacing.occlusion_m,
+                e.spacing.coverage_m,
+            ]
+            .into_iter()
+            .flatten()
+            {
                 assert!(x.is_finite() && x > 0.0);
             }
         }
     }
     for f in [10.0, 1e5] {
         let intr = Intrinsics::from_focal_px(64, 2, f, None).unwrap();
-        let e = run(&stripes(64, 2, 8, 5.0, 9.0), &intr, 0.0, &EstimatorParams::default());
+        let e = run(
+            &stripes(64, 2, 8, 5.0, 9.0),
+            &intr,
+            0.0,
+            &EstimatorParams::default(),
+        );
         assert!(e.spacing.chosen_m.unwrap().is_finite());
     }
 }
@@ -331,15 +419,40 @@ fn fov_outside_range_is_rejected() {
 fn z16_and_metres_agree() {
     // Millimetre depths are exact in both encodings; scale 0.001 m.
     let intr = Intrinsics::from_hfov_deg(64, 4, 69.0, None).unwrap();
-    let mm: Vec<u16> = (0..256).map(|i| if (i / 8) % 2 == 0 { 20_000 } else { 40_000 }).collect();
-    let z = DepthImage::new(64, 4, DepthData::Z16 { data: mm.clone(), scale_m: 0.001 }).unwrap();
+    let mm: Vec<u16> = (0..256)
+        .map(|i| if (i / 8) % 2 == 0 { 20_000 } else { 40_000 })
+        .collect();
+    let z = DepthImage::new(
+        64,
+        4,
+        DepthData::Z16 {
+            data: mm.clone(),
+            scale_m: 0.001,
+        },
+    )
+    .unwrap();
     let m = metres(64, 4, mm.iter().map(|&v| v as f32 * 0.001).collect());
     let p = no_score();
     let (ez, em) = (run(&z, &intr, 0.1, &p), run(&m, &intr, 0.1, &p));
-    assert!(close(ez.spacing.chosen_m.unwrap(), em.spacing.chosen_m.unwrap(), 1e-6));
-    assert_eq!(ez.occlusion.unwrap().boundaries, em.occlusion.unwrap().boundaries);
+    assert!(close(
+        ez.spacing.chosen_m.unwrap(),
+        em.spacing.chosen_m.unwrap(),
+        1e-6
+    ));
+    assert_eq!(
+        ez.occlusion.unwrap().boundaries,
+        em.occlusion.unwrap().boundaries
+    );
     // 0 and u16::MAX are no return and saturation: invalid.
-    let z = DepthImage::new(2, 1, DepthData::Z16 { data: vec![0, u16::MAX], scale_m: 0.001 }).unwrap();
+    let z = DepthImage::new(
+        2,
+        1,
+        DepthData::Z16 {
+            data: vec![0, u16::MAX],
+            scale_m: 0.001,
+        },
+    )
+    .unwrap();
     let intr = Intrinsics::from_hfov_deg(2, 1, 69.0, None).unwrap();
     assert_eq!(run(&z, &intr, 0.0, &p).valid_samples, 0);
 }
@@ -348,7 +461,9 @@ fn z16_and_metres_agree() {
 fn columns_along_track_equal_rows_transposed() {
     let (w, h) = (48usize, 32usize);
     let img = stripes(w, h, 6, 15.0, 35.0);
-    let DepthData::Metres(d) = img.data() else { unreachable!() };
+    let DepthData::Metres(d) = img.data() else {
+        unreachable!()
+    };
     let t: Vec<f32> = (0..w * h).map(|k| d[(k % h) * w + k / h]).collect();
     let timg = metres(h, w, t);
     let intr = Intrinsics::from_focal_px(w, h, 40.0, None).unwrap();
@@ -387,11 +502,17 @@ fn config_limits_clamp_and_say_so() {
     assert!(e.spacing.permissible_m.unwrap() < 1.0);
     p.spacing_min_m = 0.001;
     p.spacing_max_m = 0.002;
-    assert_eq!(run(&img, &intr, 0.0, &p).active_bound, Some(Bound::ConfigMax));
+    assert_eq!(
+        run(&img, &intr, 0.0, &p).active_bound,
+        Some(Bound::ConfigMax)
+    );
     p.model = Model::Fixed;
     p.spacing_max_m = 100.0;
     let e = run(&img, &intr, 0.0, &p);
-    assert_eq!((e.active_bound, e.spacing.chosen_m), (Some(Bound::Fixed), Some(5.0)));
+    assert_eq!(
+        (e.active_bound, e.spacing.chosen_m),
+        (Some(Bound::Fixed), Some(5.0))
+    );
     assert!(!e.terms.occlusion);
 }
 
@@ -416,7 +537,10 @@ fn sspa_of_a_slanted_plane_recovers_its_range_and_ignores_occluders() {
     p.model = Model::Sspa;
     let e = run(&metres(w, h, d), &intr, 0.0, &p);
     let pl = e.plane.unwrap();
-    assert!(close(pl.a, 0.01, 1e-4) && pl.b.abs() < 1e-6 && close(pl.c, 0.03, 1e-4), "{pl:?}");
+    assert!(
+        close(pl.a, 0.01, 1e-4) && pl.b.abs() < 1e-6 && close(pl.c, 0.03, 1e-4),
+        "{pl:?}"
+    );
     assert!(close(pl.delta_w_per_m, 0.02, 1e-3));
     // Extent: from x = -1 at depth 50 (x·d = -50 m) to x = +1 at depth 25 (+25 m): 75 m
     // (inlier pixel centres reach x = ±0.995, so a little less).
@@ -442,7 +566,11 @@ fn score_at_the_current_pitch_reproduces_the_direct_degree() {
     });
     let e = run(&img, &intr, phi, &p);
     let own = e.pitch_scores.iter().find(|s| s.pitch_rad == phi).unwrap();
-    assert!(close(own.degree, e.occlusion.unwrap().degree, 1e-9), "{own:?} vs {:?}", e.occlusion);
+    assert!(
+        close(own.degree, e.occlusion.unwrap().degree, 1e-9),
+        "{own:?} vs {:?}",
+        e.occlusion
+    );
     assert!(e.best_pitch.is_some() && e.terms.score);
 }
 
@@ -451,9 +579,16 @@ fn auto_decimation_picks_the_coarsest_level_within_budget() {
     let intr = Intrinsics::from_hfov_deg(320, 240, 69.0, None).unwrap();
     let img = stripes(320, 240, 40, 20.0, 40.0);
     let mut est = Estimator::new(no_score());
-    let (e, c) = est.calibrate(&img, &intr, 0.0, 0.05, &DECIMATION_LEVELS).unwrap();
+    let (e, c) = est
+        .calibrate(&img, &intr, 0.0, 0.05, &DECIMATION_LEVELS)
+        .unwrap();
     assert_eq!(c.errors.len(), 5);
-    let within: Vec<usize> = c.errors.iter().filter(|(_, err)| *err <= 0.05).map(|(l, _)| *l).collect();
+    let within: Vec<usize> = c
+        .errors
+        .iter()
+        .filter(|(_, err)| *err <= 0.05)
+        .map(|(l, _)| *l)
+        .collect();
     assert_eq!(c.level, *within.iter().max().unwrap());
     assert_eq!(e.decimation, c.level);
     assert_eq!(c.errors[0], (1, 0.0));
@@ -463,7 +598,9 @@ fn auto_decimation_picks_the_coarsest_level_within_budget() {
 fn size_mismatch_is_a_calling_error() {
     let intr = Intrinsics::from_hfov_deg(10, 10, 60.0, None).unwrap();
     let img = metres(5, 2, vec![1.0; 10]);
-    assert!(Estimator::new(no_score()).estimate_at(&img, &intr, 0.0, 1).is_err());
+    assert!(Estimator::new(no_score())
+        .estimate_at(&img, &intr, 0.0, 1)
+        .is_err());
 }
 
 #[test]

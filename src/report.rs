@@ -1,0 +1,195 @@
+//! Estimates as the outside world reads them: the JSON object of DESIGN §4
+//! (every number finite or null) and a short human summary.
+
+use crate::core::estimate::DecimationChoice;
+use crate::core::{Estimate, EstimatorParams};
+use serde_json::{json, Value};
+
+/// A quantity for JSON: finite non-negative values pass, anything else is null.
+fn num(x: Option<f64>) -> Value {
+    match x {
+        Some(v) if v.is_finite() && v >= 0.0 => json!(v),
+        _ => Value::Null,
+    }
+}
+
+/// What was estimated from, echoed so a result file stands on its own.
+#[derive(Debug, Clone)]
+pub struct InputInfo {
+    pub file: String,
+    pub format: &'static str,
+    pub width: usize,
+    pub height: usize,
+    pub focal_px: f64,
+    pub pitch_deg: f64,
+}
+
+pub fn estimate_json(
+    e: &Estimate,
+    params: &EstimatorParams,
+    decimation: Option<&DecimationChoice>,
+    input: &InputInfo,
+    elapsed_us: u64,
+) -> Value {
+    let ok = e.is_ok();
+    let inv = e.inv_depth.filter(|_| ok);
+    let occ = e.occlusion.filter(|_| ok);
+    json!({
+        "status": if ok { "ok" } else { "no_estimate" },
+        "reason": e.no_estimate.map(|r| r.as_str()),
+        "valid_fraction": num(Some(e.valid_fraction)),
+        "inv_depth_per_m": inv.map(|i| json!({
+            "min": num(Some(i.min_per_m)),
+            "max": num(Some(i.max_per_m)),
+            "opt": num(Some(i.opt_per_m)),
+        })),
+        "occlusion": occ.map(|o| json!({
+            "boundaries": o.boundaries,
+            "lines": o.lines,
+            "contrast_per_m": num(Some(o.contrast_per_m)),
+            "density_per_m": num(Some(o.density_per_m)),
+            "degree": num(Some(o.degree)),
+            "max_degree": num(Some(o.max_degree)),
+        })),
+        "spacing_m": {
+            "mmds": num(e.spacing.mmds_m),
+            "sspa": num(e.spacing.sspa_m),
+            "occlusion": num(e.spacing.occlusion_m),
+            "coverage": num(e.spacing.coverage_m),
+            "permissible": num(e.spacing.permissible_m),
+            "chosen": num(e.spacing.chosen_m),
+        },
+        "active_bound": e.active_bound.map(|b| b.as_str()),
+        "model": params.model.as_str(),
+        "terms": e.terms.names(),
+        // A pitch may be negative (tilted backwards); it is always finite.
+        "best_pitch_deg": e.best_pitch.map(|s| s.pitch_rad.to_degrees()),
+        "best_pitch_degree": num(e.best_pitch.map(|s| s.degree)),
+        "decimation": {
+            "level": e.decimation,
+            "budget": decimation.map(|d| d.budget),
+            "errors": decimation.map(|d| d.errors.iter().map(|(l, err)| json!({
+                "level": l, "relative_error": num(Some(*err)),
+            })).collect::<Vec<_>>()),
+        },
+        "input": {
+            "file": input.file,
+            "format": input.format,
+            "width": input.width,
+            "height": input.height,
+            "focal_px": num(Some(input.focal_px)),
+            "pitch_deg": input.pitch_deg,
+        },
+        "elapsed_us": elapsed_us,
+    })
+}
+
+fn fmt_m(x: Option<f64>) -> String {
+    match x {
+        Some(v) if v >= 100.0 => format!("{v:.1} m"),
+        Some(v) if v >= 0.01 => format!("{v:.3} m"),
+        Some(v) => format!("{v:.3e} m"),
+        None => "unbounded".into(),
+    }
+}
+
+pub fn estimate_text(
+    e: &Estimate,
+    params: &EstimatorParams,
+    decimation: Option<&DecimationChoice>,
+    input: &InputInfo,
+    elapsed_us: u64,
+) -> String {
+    let mut s = String::new();
+    use std::fmt::Write;
+    let _ = writeln!(
+        s,
+        "{}: {}x{} {}, f = {:.1} px, pitch {:.1} deg, {:.1} % valid",
+        input.file,
+        input.width,
+        input.height,
+        input.format,
+        input.focal_px,
+        input.pitch_deg,
+        100.0 * e.valid_fraction
+    );
+    if let Some(r) = e.no_estimate {
+        let _ = writeln!(s, "no estimate: {}", r.as_str());
+        return s;
+    }
+    if let Some(i) = e.inv_depth {
+        let _ = writeln!(
+            s,
+            "depth range    {} to {} (robust {:.1}-{:.1} percentiles)",
+            fmt_m(Some(1.0 / i.max_per_m)),
+            if i.min_per_m > 0.0 {
+                fmt_m(Some(1.0 / i.min_per_m))
+            } else {
+                "sky".into()
+            },
+            100.0 * params.percentile_low,
+            100.0 * params.percentile_high
+        );
+    } else {
+        let _ = writeln!(s, "depth range    no surface in view (sky only)");
+    }
+    if let Some(o) = e.occlusion {
+        let _ = writeln!(
+            s,
+            "occlusion      {} boundaries on {} lines, density {:.4} /m, degree {:.4} (max {})",
+            o.boundaries, o.lines, o.density_per_m, o.degree, o.max_degree
+        );
+    }
+    let sp = &e.spacing;
+    let _ = writeln!(s, "spacing  mmds      {}", fmt_m(sp.mmds_m));
+    if e.terms.sspa {
+        let _ = writeln!(s, "         sspa      {}", fmt_m(sp.sspa_m));
+    }
+    if e.terms.occlusion {
+        let _ = writeln!(s, "         occlusion {}", fmt_m(sp.occlusion_m));
+    }
+    let _ = writeln!(s, "         coverage  {}", fmt_m(sp.coverage_m));
+    let _ = writeln!(
+        s,
+        "chosen         {} ({} model, bound: {})",
+        fmt_m(sp.chosen_m),
+        params.model.as_str(),
+        e.active_bound.map_or("none", |b| b.as_str())
+    );
+    let _ = writeln!(s, "terms          {}", e.terms.names().join(", "));
+    if let Some(b) = e.best_pitch {
+        let _ = writeln!(
+            s,
+            "best pitch     {:.1} deg (occlusion degree {:.4} there)",
+            b.pitch_rad.to_degrees(),
+            b.degree
+        );
+    }
+    match decimation {
+        Some(d) => {
+            let errs: Vec<String> = d
+                .errors
+                .iter()
+                .map(|(l, err)| {
+                    if err.is_finite() {
+                        format!("{l}: {:.2} %", 100.0 * err)
+                    } else {
+                        format!("{l}: n/a")
+                    }
+                })
+                .collect();
+            let _ = writeln!(
+                s,
+                "decimation     {} (coarsest within {:.1} %; errors {})",
+                d.level,
+                100.0 * d.budget,
+                errs.join(", ")
+            );
+        }
+        None => {
+            let _ = writeln!(s, "decimation     {}", e.decimation);
+        }
+    }
+    let _ = writeln!(s, "elapsed        {elapsed_us} us");
+    s
+}

@@ -1,0 +1,168 @@
+//! Error against run time: every decimation level and model measured on a set
+//! of depth frames, against full resolution. Timing happens here, at the edge;
+//! the core only computes.
+
+use crate::core::estimate::relative_error;
+use crate::core::{DepthImage, Estimator, EstimatorParams, Intrinsics, Model};
+use std::time::Instant;
+
+/// One depth frame to measure on.
+pub struct Frame {
+    pub name: String,
+    pub image: DepthImage,
+    pub intrinsics: Intrinsics,
+    pub pitch_rad: f64,
+}
+
+#[derive(Debug, Clone)]
+pub struct Row {
+    pub model: Model,
+    pub decimation: usize,
+    pub mean_error: f64,
+    pub max_error: f64,
+    /// Per frame, in the order of the frames.
+    pub errors: Vec<f64>,
+    /// Median time per frame, microseconds, averaged over frames.
+    pub time_us: f64,
+}
+
+fn time_us(est: &mut Estimator, f: &Frame, step: usize, repeats: usize) -> f64 {
+    let mut t = Vec::with_capacity(repeats);
+    for _ in 0..repeats.max(1) {
+        let start = Instant::now();
+        let e = est.estimate_at(&f.image, &f.intrinsics, f.pitch_rad, step);
+        std::hint::black_box(&e);
+        t.push(start.elapsed().as_secs_f64() * 1e6);
+    }
+    t.sort_by(f64::total_cmp);
+    t[t.len() / 2]
+}
+
+/// Rows for each model in `models` and level in `levels`; the score (eq. 15)
+/// is left out since it does not change the spacing.
+pub fn measure(
+    frames: &[Frame],
+    base: &EstimatorParams,
+    models: &[Model],
+    levels: &[usize],
+    repeats: usize,
+) -> Vec<Row> {
+    let mut rows = Vec::new();
+    for &model in models {
+        let params = EstimatorParams {
+            model,
+            score: None,
+            with_sspa: false,
+            with_occlusion: false,
+            ..base.clone()
+        };
+        let mut est = Estimator::new(params);
+        let reference: Vec<Option<f64>> = frames
+            .iter()
+            .map(|f| {
+                est.estimate_at(&f.image, &f.intrinsics, f.pitch_rad, 1)
+                    .ok()
+                    .and_then(|e| e.spacing.permissible_m)
+            })
+            .collect();
+        for &level in levels {
+            let mut errors = Vec::with_capacity(frames.len());
+            let mut total_us = 0.0;
+            for (f, r) in frames.iter().zip(&reference) {
+                let got = est
+                    .estimate_at(&f.image, &f.intrinsics, f.pitch_rad, level)
+                    .ok()
+                    .and_then(|e| e.spacing.permissible_m);
+                errors.push(relative_error(got, *r));
+                total_us += time_us(&mut est, f, level, repeats);
+            }
+            let n = errors.len().max(1) as f64;
+            rows.push(Row {
+                model,
+                decimation: level,
+                mean_error: errors.iter().sum::<f64>() / n,
+                max_error: errors.iter().cloned().fold(0.0, f64::max),
+                errors,
+                time_us: total_us / n,
+            });
+        }
+    }
+    rows
+}
+
+/// The table in markdown: error and time, and the speed-up against level 1 of
+/// the same model measured in the same run.
+pub fn markdown(frames: &[Frame], rows: &[Row]) -> String {
+    use std::fmt::Write;
+    let mut s = String::new();
+    let _ = writeln!(s, "| model | decimation | mean spacing error | max spacing error | time per frame (µs) | speed-up vs 1 |");
+    let _ = writeln!(s, "|---|---:|---:|---:|---:|---:|");
+    for r in rows {
+        let full = rows
+            .iter()
+            .find(|x| x.model == r.model && x.decimation == 1)
+            .map_or(f64::NAN, |x| x.time_us);
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} | {:.0} | {:.1}× |",
+            r.model.as_str(),
+            r.decimation,
+            pct(r.mean_error),
+            pct(r.max_error),
+            r.time_us,
+            full / r.time_us
+        );
+    }
+    let _ = writeln!(s);
+    let _ = write!(s, "| model | decimation |");
+    for f in frames {
+        let _ = write!(s, " {} |", f.name);
+    }
+    let _ = writeln!(s);
+    let _ = writeln!(s, "|---|---:|{}", "---:|".repeat(frames.len()));
+    for r in rows {
+        let _ = write!(s, "| {} | {} |", r.model.as_str(), r.decimation);
+        for e in &r.errors {
+            let _ = write!(s, " {} |", pct(*e));
+        }
+        let _ = writeln!(s);
+    }
+    s
+}
+
+fn pct(x: f64) -> String {
+    if x.is_finite() {
+        format!("{:.2} %", 100.0 * x)
+    } else {
+        "unbounded vs bounded".into()
+    }
+}
+
+/// The synthetic reference scenes ([`crate::synth::reference_scenes`]) rendered
+/// as Z16 at `width`×`height` (sky becomes "no return", as on a RealSense).
+pub fn reference_frames(width: usize, height: usize, hfov_deg: f64) -> Vec<Frame> {
+    use crate::core::DepthData;
+    let intrinsics = Intrinsics::from_hfov_deg(width, height, hfov_deg, None)
+        .expect("reference intrinsics are in range");
+    crate::synth::reference_scenes()
+        .into_iter()
+        .map(|(name, world, pose)| {
+            let depth = world.render_depth(&pose, &intrinsics);
+            let data = crate::synth::to_z16(&depth, 0.001);
+            Frame {
+                name: name.to_string(),
+                image: DepthImage::new(
+                    width,
+                    height,
+                    DepthData::Z16 {
+                        data,
+                        scale_m: 0.001,
+                    },
+                )
+                .expect("rendered size matches"),
+                intrinsics,
+                pitch_rad: pose.pitch_rad,
+            }
+        })
+        .collect()
+}

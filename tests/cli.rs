@@ -1,0 +1,432 @@
+//! `alfd estimate` and `alfd check-config` as a user runs them: on the shipped
+//! maps, on hand-made two-level maps (against DESIGN's closed forms, 2 %), and
+//! on bad input (one line naming the problem, exit code 2).
+
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn alfd(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_alfd"))
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .expect("alfd runs")
+}
+
+fn json(args: &[&str]) -> Value {
+    let mut a = args.to_vec();
+    a.push("--json");
+    let out = alfd(&a);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).expect("valid JSON")
+}
+
+fn f(v: &Value, path: &[&str]) -> f64 {
+    let mut x = v;
+    for k in path {
+        x = &x[*k];
+    }
+    x.as_f64()
+        .unwrap_or_else(|| panic!("{path:?} is not a number: {x}"))
+}
+
+fn within(a: f64, b: f64, rel: f64) -> bool {
+    (a - b).abs() <= rel * b.abs()
+}
+
+/// Runs alfd expecting bad input: exit 2 and exactly one line on stderr
+/// containing every word of `expect`.
+fn rejects(args: &[&str], expect: &[&str]) {
+    let out = alfd(args);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "args {args:?}: {err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "one line, got: {err}");
+    for w in expect {
+        assert!(err.contains(w), "{w:?} missing from: {err}");
+    }
+    assert!(out.stdout.is_empty());
+}
+
+#[test]
+fn shipped_roof_map_matches_the_closed_forms() {
+    let v = json(&[
+        "estimate",
+        "--depth",
+        "tests/data/roof_160x120.z16",
+        "--width",
+        "160",
+        "--height",
+        "120",
+        "--hfov-deg",
+        "69",
+    ]);
+    assert_eq!(v["status"], "ok");
+    // f = 80/tan(34.5°); roof at 20 m, ground at 40 m: Δw = 0.025 1/m.
+    let focal = 80.0 / 34.5f64.to_radians().tan();
+    assert!(within(
+        f(&v, &["spacing_m", "mmds"]),
+        2.0 / (focal * 0.025),
+        0.02
+    ));
+    // The 12 m wide roof seen from 20 m spans |y/f| <= 0.3: rows r with
+    // |r + 0.5 - 60| <= 0.3·f, each crossing two edges of contrast 0.025.
+    let rows = (0..120)
+        .filter(|r| ((*r as f64 + 0.5 - 60.0) / focal).abs() <= 0.3)
+        .count();
+    assert_eq!(rows, 70);
+    let d = rows as f64 * 2.0 * 0.025 / 120.0;
+    let occ = 0.01 * 160.0 / (focal * d);
+    assert!(
+        within(f(&v, &["spacing_m", "occlusion"]), occ, 0.02),
+        "{}",
+        v["spacing_m"]
+    );
+    assert_eq!(v["active_bound"], "occlusion");
+    assert_eq!(v["occlusion"]["boundaries"], 140);
+    assert!(within(f(&v, &["occlusion", "degree"]), 0.01, 1e-9));
+    let terms: Vec<&str> = v["terms"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t.as_str().unwrap())
+        .collect();
+    assert_eq!(terms, ["mmds", "occlusion", "coverage", "score"]);
+}
+
+#[test]
+fn every_shipped_map_answers_with_the_documented_schema() {
+    for args in [
+        vec![
+            "estimate",
+            "--depth",
+            "tests/data/buildings_320x240.png",
+            "--hfov-deg",
+            "69",
+            "--pitch-deg",
+            "20",
+            "--sspa",
+        ],
+        vec![
+            "estimate",
+            "--depth",
+            "tests/data/street_64x48.pfm",
+            "--hfov-deg",
+            "90",
+            "--pitch-deg",
+            "60",
+        ],
+        vec![
+            "estimate",
+            "--depth",
+            "tests/data/roof_160x120.z16",
+            "--width",
+            "160",
+            "--height",
+            "120",
+            "--hfov-deg",
+            "69",
+            "--decimation",
+            "auto",
+        ],
+    ] {
+        let v = json(&args);
+        assert_eq!(v["status"], "ok", "{args:?}");
+        for key in [
+            "status",
+            "reason",
+            "valid_fraction",
+            "inv_depth_per_m",
+            "occlusion",
+            "spacing_m",
+            "active_bound",
+            "terms",
+            "best_pitch_deg",
+            "elapsed_us",
+        ] {
+            assert!(v.get(key).is_some(), "{key} missing for {args:?}");
+        }
+        for key in ["mmds", "sspa", "occlusion", "coverage", "chosen"] {
+            let x = &v["spacing_m"][key];
+            assert!(
+                x.is_null() || x.as_f64().is_some_and(|s| s.is_finite() && s > 0.0),
+                "{key}: {x}"
+            );
+        }
+        let chosen = f(&v, &["spacing_m", "chosen"]);
+        assert!(chosen > 0.0);
+    }
+}
+
+#[test]
+fn human_summary_names_the_chosen_spacing_and_its_bound() {
+    let out = alfd(&[
+        "estimate",
+        "--depth",
+        "tests/data/roof_160x120.z16",
+        "--width",
+        "160",
+        "--height",
+        "120",
+        "--hfov-deg",
+        "69",
+    ]);
+    assert!(out.status.success());
+    let s = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        s.contains("chosen") && s.contains("bound: occlusion"),
+        "{s}"
+    );
+}
+
+fn write_two_level_z16(
+    dir: &Path,
+    w: usize,
+    h: usize,
+    split: usize,
+    near_mm: u16,
+    far_mm: u16,
+) -> PathBuf {
+    let mut bytes = Vec::new();
+    for _ in 0..h {
+        for i in 0..w {
+            let z = if i < split { near_mm } else { far_mm };
+            bytes.extend_from_slice(&z.to_le_bytes());
+        }
+    }
+    let p = dir.join("two_level.z16");
+    std::fs::write(&p, bytes).unwrap();
+    p
+}
+
+#[test]
+fn hand_made_two_level_maps_match_design_within_two_percent() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("tight.toml");
+    // O_max small enough that one edge per row binds.
+    std::fs::write(
+        &config,
+        "[sampling]\nocclusion_max = 0.001\nspacing_min_m = 0.001\n",
+    )
+    .unwrap();
+    for (w, h, split, near, far, fov, pitch) in [
+        (
+            640usize, 48usize, 300usize, 15_000u16, 45_000u16, 69.0f64, 0.0f64,
+        ),
+        (320, 20, 100, 8_000, 30_000, 40.0, 30.0),
+        (1280, 8, 900, 2_500, 3_000, 100.0, -45.0),
+    ] {
+        let path = write_two_level_z16(dir.path(), w, h, split, near, far);
+        let ws = w.to_string();
+        let hs = h.to_string();
+        let fovs = fov.to_string();
+        let pitchs = pitch.to_string();
+        let v = json(&[
+            "estimate",
+            "--depth",
+            path.to_str().unwrap(),
+            "--width",
+            &ws,
+            "--height",
+            &hs,
+            "--hfov-deg",
+            &fovs,
+            "--pitch-deg",
+            &pitchs,
+            "--config",
+            config.to_str().unwrap(),
+        ]);
+        let focal = (w as f64 / 2.0) / (fov / 2.0).to_radians().tan();
+        let c = pitch.to_radians().cos();
+        let dw = 1000.0 / near as f64 - 1000.0 / far as f64;
+        // MMDS 2/(f·cos φ·Δw); occlusion O_max·2v_m/(f·cos φ·D) with D = Δw (one edge a row).
+        assert!(
+            within(f(&v, &["spacing_m", "mmds"]), 2.0 / (focal * c * dw), 0.02),
+            "{v}"
+        );
+        let occ = (0.001 * w as f64 / (focal * c * dw)).min(2.0 / (focal * c * dw));
+        assert!(within(f(&v, &["spacing_m", "occlusion"]), occ, 0.02), "{v}");
+    }
+}
+
+#[test]
+fn bad_input_gets_one_line_and_exit_2() {
+    let dir = tempfile::tempdir().unwrap();
+    let short = dir.path().join("short.z16");
+    std::fs::write(&short, vec![0u8; 100]).unwrap();
+    let s = short.to_str().unwrap();
+    rejects(
+        &[
+            "estimate",
+            "--depth",
+            s,
+            "--width",
+            "160",
+            "--height",
+            "120",
+            "--hfov-deg",
+            "69",
+        ],
+        &["truncated", "short.z16"],
+    );
+    rejects(
+        &[
+            "estimate",
+            "--depth",
+            "tests/data/roof_160x120.z16",
+            "--width",
+            "100",
+            "--height",
+            "100",
+            "--hfov-deg",
+            "69",
+        ],
+        &["size does not match"],
+    );
+    rejects(
+        &[
+            "estimate",
+            "--depth",
+            "tests/data/buildings_320x240.png",
+            "--width",
+            "100",
+            "--hfov-deg",
+            "69",
+        ],
+        &["size mismatch"],
+    );
+    let rgb = dir.path().join("rgb.png");
+    {
+        let file = std::fs::File::create(&rgb).unwrap();
+        let mut enc = png::Encoder::new(std::io::BufWriter::new(file), 2, 2);
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_depth(png::BitDepth::Eight);
+        enc.write_header()
+            .unwrap()
+            .write_image_data(&[0u8; 12])
+            .unwrap();
+    }
+    rejects(
+        &[
+            "estimate",
+            "--depth",
+            rgb.to_str().unwrap(),
+            "--hfov-deg",
+            "69",
+        ],
+        &["16-bit greyscale", "rgb.png"],
+    );
+    rejects(
+        &[
+            "estimate",
+            "--depth",
+            "no/such/depth.png",
+            "--hfov-deg",
+            "69",
+        ],
+        &["cannot read", "no/such/depth.png"],
+    );
+    rejects(
+        &[
+            "estimate",
+            "--depth",
+            "tests/data/street_64x48.pfm",
+            "--hfov-deg",
+            "175",
+        ],
+        &["--hfov-deg", "between 1 and 170"],
+    );
+    rejects(
+        &[
+            "estimate",
+            "--depth",
+            "tests/data/street_64x48.pfm",
+            "--hfov-deg",
+            "0.5",
+        ],
+        &["--hfov-deg"],
+    );
+    rejects(
+        &[
+            "estimate",
+            "--depth",
+            "tests/data/roof_160x120.z16",
+            "--hfov-deg",
+            "69",
+        ],
+        &["--width/--height"],
+    );
+    rejects(
+        &[
+            "estimate",
+            "--depth",
+            "tests/data/street_64x48.pfm",
+            "--hfov-deg",
+            "69",
+            "--model",
+            "best",
+        ],
+        &["--model"],
+    );
+}
+
+#[test]
+fn no_estimate_is_reported_not_guessed() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("empty.z16");
+    std::fs::write(&p, vec![0u8; 2 * 8 * 6]).unwrap();
+    let v = json(&[
+        "estimate",
+        "--depth",
+        p.to_str().unwrap(),
+        "--width",
+        "8",
+        "--height",
+        "6",
+        "--hfov-deg",
+        "60",
+    ]);
+    assert_eq!(v["status"], "no_estimate");
+    assert_eq!(v["reason"], "too_few_valid_pixels");
+    assert!(v["spacing_m"]["chosen"].is_null());
+    let v = json(&[
+        "estimate",
+        "--depth",
+        "tests/data/street_64x48.pfm",
+        "--hfov-deg",
+        "90",
+        "--pitch-deg",
+        "89.5",
+    ]);
+    assert_eq!(v["reason"], "pitch_near_horizontal");
+}
+
+#[test]
+fn check_config_accepts_the_shipped_configs_and_names_bad_fields() {
+    for entry in std::fs::read_dir(Path::new(env!("CARGO_MANIFEST_DIR")).join("configs")).unwrap() {
+        let p = entry.unwrap().path();
+        let out = alfd(&["check-config", p.to_str().unwrap()]);
+        assert!(
+            out.status.success(),
+            "{}: {}",
+            p.display(),
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let bad = dir.path().join("bad.toml");
+    std::fs::write(&bad, "[sampling]\nocclusion_max = 3.0\n").unwrap();
+    rejects(
+        &["check-config", bad.to_str().unwrap()],
+        &["sampling.occlusion_max"],
+    );
+    std::fs::write(&bad, "[estimator]\ndecimaton = 2\n").unwrap();
+    rejects(
+        &["check-config", bad.to_str().unwrap()],
+        &["decimaton", "line 2"],
+    );
+}

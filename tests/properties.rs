@@ -1,0 +1,270 @@
+//! Property tests of the estimator over random maps, pitches, fields of view,
+//! focal lengths and invalid fractions. Cases per property: `ALFD_PROPTEST_CASES`
+//! (default 100000, which CI runs); `ALFD_PROPTEST_CASES=1000000` is the long run.
+
+use alfd::core::params::ScoreParams;
+use alfd::core::{DepthData, DepthImage, Estimate, Estimator, EstimatorParams, Intrinsics, Model};
+use proptest::prelude::*;
+
+fn cases() -> u32 {
+    std::env::var("ALFD_PROPTEST_CASES")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(100_000)
+}
+
+fn config() -> ProptestConfig {
+    ProptestConfig {
+        cases: cases(),
+        max_shrink_iters: 2000,
+        ..ProptestConfig::default()
+    }
+}
+
+/// Depth in metres, log-uniform over 1 mm to 1e6 m, or a special value.
+fn depth() -> impl Strategy<Value = f32> {
+    prop_oneof![
+        8 => (-3.0f64..6.0).prop_map(|e| 10f64.powf(e) as f32),
+        1 => Just(f32::INFINITY),
+        1 => prop_oneof![Just(f32::NAN), Just(0.0f32), Just(-1.0f32), Just(f32::NEG_INFINITY)],
+    ]
+}
+
+#[derive(Debug, Clone)]
+struct Case {
+    w: usize,
+    h: usize,
+    depth: Vec<f32>,
+    intr: Intrinsics,
+    pitch_rad: f64,
+}
+
+fn intrinsics(w: usize, h: usize) -> impl Strategy<Value = Intrinsics> {
+    prop_oneof![
+        (1.0f64..=170.0).prop_map(move |fov| Intrinsics::from_hfov_deg(w, h, fov, None).unwrap()),
+        (1.0f64..5.0)
+            .prop_map(move |e| Intrinsics::from_focal_px(w, h, 10f64.powf(e), None).unwrap()),
+    ]
+}
+
+/// A random map: a few depth levels in random blocks, random invalid pixels.
+fn random_case() -> impl Strategy<Value = Case> {
+    (1usize..=48, 1usize..=24)
+        .prop_flat_map(|(w, h)| {
+            (
+                Just(w),
+                Just(h),
+                proptest::collection::vec(depth(), 1..6),
+                proptest::collection::vec(0usize..6, w * h),
+                0.0f64..1.0,
+                proptest::collection::vec(0.0f64..1.0, w * h),
+                intrinsics(w, h),
+                prop_oneof![9 => -85.0f64..85.0, 1 => -400.0f64..400.0],
+            )
+        })
+        .prop_map(
+            |(w, h, levels, pick, invalid_frac, coin, intr, pitch_deg)| {
+                let depth = pick
+                    .iter()
+                    .zip(&coin)
+                    .map(|(&k, &c)| {
+                        if c < invalid_frac {
+                            f32::NAN
+                        } else {
+                            levels[k % levels.len()]
+                        }
+                    })
+                    .collect();
+                Case {
+                    w,
+                    h,
+                    depth,
+                    intr,
+                    pitch_rad: pitch_deg.to_radians(),
+                }
+            },
+        )
+}
+
+fn run(c: &Case, params: &EstimatorParams) -> Estimate {
+    let img = DepthImage::new(c.w, c.h, DepthData::Metres(c.depth.clone())).unwrap();
+    Estimator::new(params.clone())
+        .estimate_at(&img, &c.intr, c.pitch_rad, 1)
+        .unwrap()
+}
+
+fn all_params() -> EstimatorParams {
+    EstimatorParams {
+        with_sspa: true,
+        score: Some(ScoreParams {
+            candidates_rad: (-4..=4).map(|k| (k as f64 * 20.0).to_radians()).collect(),
+            step_px: 1,
+            min_coverage: 0.3,
+        }),
+        ..EstimatorParams::default()
+    }
+}
+
+fn finite_nonneg(x: f64) -> bool {
+    x.is_finite() && x >= 0.0
+}
+
+proptest! {
+    #![proptest_config(config())]
+
+    #[test]
+    fn every_output_is_finite_and_non_negative(c in random_case()) {
+        let p = all_params();
+        let e = run(&c, &p);
+        prop_assert!((0.0..=1.0).contains(&e.valid_fraction));
+        let s = e.spacing;
+        for x in [s.mmds_m, s.sspa_m, s.occlusion_m, s.coverage_m, s.permissible_m, s.chosen_m].into_iter().flatten() {
+            prop_assert!(x.is_finite() && x > 0.0, "{:?}", s);
+        }
+        if e.is_ok() {
+            let chosen = s.chosen_m.unwrap();
+            prop_assert!(chosen >= p.spacing_min_m && chosen <= p.spacing_max_m);
+            prop_assert!(e.active_bound.is_some());
+        } else {
+            prop_assert!(s.chosen_m.is_none());
+        }
+        if let Some(i) = e.inv_depth {
+            prop_assert!(finite_nonneg(i.min_per_m) && finite_nonneg(i.max_per_m) && i.min_per_m <= i.max_per_m);
+        }
+        if let Some(o) = e.occlusion {
+            prop_assert!(finite_nonneg(o.density_per_m) && finite_nonneg(o.contrast_per_m));
+            prop_assert!((0.0..=1.0).contains(&o.degree));
+        }
+        if let Some(pl) = e.plane {
+            prop_assert!(finite_nonneg(pl.delta_w_per_m) && pl.extent_m.is_finite() && pl.extent_m > 0.0);
+        }
+        for sc in &e.pitch_scores {
+            prop_assert!(sc.pitch_rad.is_finite() && (0.0..=1.0).contains(&sc.degree));
+        }
+    }
+
+    #[test]
+    fn occlusion_aware_spacing_never_exceeds_mmds(c in random_case()) {
+        let p = EstimatorParams { score: None, ..EstimatorParams::default() };
+        let occ = run(&c, &p);
+        let mm = run(&c, &EstimatorParams { model: Model::Mmds, ..p.clone() });
+        if let (Some(o), Some(m)) = (occ.spacing.occlusion_m, occ.spacing.mmds_m) {
+            prop_assert!(o <= m);
+        }
+        match (occ.spacing.chosen_m, mm.spacing.chosen_m) {
+            (Some(o), Some(m)) => prop_assert!(o <= m, "occlusion {o} > mmds {m}"),
+            (None, None) => {}
+            other => prop_assert!(false, "one model answered and not the other: {:?}", other),
+        }
+    }
+}
+
+/// Maps with no edge: a random walk in log depth with steps under 1 %, below the
+/// 3 % relative threshold, so no pair of neighbours is a boundary.
+fn smooth_case() -> impl Strategy<Value = Case> {
+    (1usize..=48, 1usize..=24)
+        .prop_flat_map(|(w, h)| {
+            (
+                Just(w),
+                Just(h),
+                (-2.0f64..5.0),
+                proptest::collection::vec(-0.0099f64..0.0099, w * h),
+                intrinsics(w, h),
+                -80.0f64..80.0,
+            )
+        })
+        .prop_map(|(w, h, log_d0, steps, intr, pitch_deg)| {
+            let mut depth = Vec::with_capacity(w * h);
+            for r in 0..h {
+                let mut d = 10f64.powf(log_d0) * (1.0 + steps[r * w]);
+                for i in 0..w {
+                    d *= 1.0 + steps[r * w + i];
+                    depth.push(d as f32);
+                }
+            }
+            Case {
+                w,
+                h,
+                depth,
+                intr,
+                pitch_rad: pitch_deg.to_radians(),
+            }
+        })
+}
+
+/// A background scene and a rectangular occluder in front of all of it,
+/// covering at most half the map, at a sequence of ever nearer depths.
+fn occluder_case() -> impl Strategy<Value = (Case, (usize, usize, usize, usize), Vec<f32>)> {
+    (2usize..=48, 1usize..=24)
+        .prop_flat_map(|(w, h)| {
+            (
+                Just(w),
+                Just(h),
+                proptest::collection::vec(1.0f64..3.0, w * h),
+                intrinsics(w, h),
+                -80.0f64..80.0,
+                (0..w, 0..h, 1..=w, 1..=h),
+                proptest::collection::vec(0.01f64..0.99, 1..8),
+            )
+        })
+        .prop_map(
+            |(w, h, bg_log, intr, pitch_deg, (x0, y0, rw, rh), mut fracs)| {
+                let depth: Vec<f32> = bg_log.iter().map(|&e| 10f64.powf(e) as f32).collect();
+                let nearest = depth.iter().cloned().fold(f32::INFINITY, f32::min);
+                let rw = rw.min(w - x0);
+                let rh = rh.min(h - y0).min(((w * h) / 2 / rw).max(1));
+                // Decreasing depths, all in front of the nearest background point.
+                fracs.sort_by(|a, b| b.total_cmp(a));
+                let seq = fracs.iter().map(|f| nearest * *f as f32).collect();
+                (
+                    Case {
+                        w,
+                        h,
+                        depth,
+                        intr,
+                        pitch_rad: pitch_deg.to_radians(),
+                    },
+                    (x0, y0, rw, rh),
+                    seq,
+                )
+            },
+        )
+}
+
+proptest! {
+    #![proptest_config(config())]
+
+    #[test]
+    fn scene_without_boundaries_gives_exactly_mmds(c in smooth_case()) {
+        let p = EstimatorParams { score: None, ..EstimatorParams::default() };
+        let occ = run(&c, &p);
+        let mm = run(&c, &EstimatorParams { model: Model::Mmds, ..p.clone() });
+        prop_assert_eq!(occ.occlusion.map(|o| o.boundaries), Some(0));
+        prop_assert!(!occ.terms.occlusion);
+        prop_assert_eq!(occ.spacing.chosen_m.map(f64::to_bits), mm.spacing.chosen_m.map(f64::to_bits));
+        prop_assert_eq!(occ.active_bound, mm.active_bound);
+    }
+
+    #[test]
+    fn spacing_shrinks_as_occluder_contrast_grows((c, rect, seq) in occluder_case()) {
+        let p = EstimatorParams { score: None, ..EstimatorParams::default() };
+        let (x0, y0, rw, rh) = rect;
+        let mut last: Option<(f64, f64)> = None;
+        for &df in &seq {
+            let mut cc = c.clone();
+            for y in y0..y0 + rh {
+                for x in x0..x0 + rw {
+                    cc.depth[y * c.w + x] = df;
+                }
+            }
+            let e = run(&cc, &p);
+            let perm = e.spacing.permissible_m.unwrap_or(f64::INFINITY);
+            let occ = e.spacing.occlusion_m.unwrap_or(f64::INFINITY);
+            if let Some((lp, lo)) = last {
+                prop_assert!(perm <= lp, "permissible grew from {lp} to {perm} at occluder depth {df}");
+                prop_assert!(occ <= lo, "occlusion term grew from {lo} to {occ} at occluder depth {df}");
+            }
+            last = Some((perm, occ));
+        }
+    }
+}
