@@ -1,1 +1,153 @@
-fn main(){}
+//! The estimator at 640×480 and 1280×720 Z16: the full estimate, each stage,
+//! and a baseline measured in the same run that only reads the frame once (the
+//! sum of its u16 values). `scripts/bench-ratios.py` prints every figure as a
+//! ratio to that baseline, since this machine is shared and noisy.
+
+use alfd::core::estimate::Estimator;
+use alfd::core::inverse::{fill_grid, percentile_ranks, InvGrid, Selector};
+use alfd::core::occlusion::{scan, BoundaryParams};
+use alfd::core::plane;
+use alfd::core::score;
+use alfd::core::{DepthData, DepthImage, EstimatorParams, Intrinsics};
+use alfd::synth::{reference_scenes, to_z16};
+use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use std::hint::black_box;
+use std::time::Duration;
+
+fn frame(w: usize, h: usize) -> (DepthImage, Intrinsics, f64) {
+    let (_, world, pose) = reference_scenes()
+        .into_iter()
+        .find(|s| s.0 == "buildings")
+        .unwrap();
+    let intr = Intrinsics::from_hfov_deg(w, h, 69.0, None).unwrap();
+    let z = to_z16(&world.render_depth(&pose, &intr), 0.001);
+    (
+        DepthImage::new(
+            w,
+            h,
+            DepthData::Z16 {
+                data: z,
+                scale_m: 0.001,
+            },
+        )
+        .unwrap(),
+        intr,
+        pose.pitch_rad,
+    )
+}
+
+fn bench(c: &mut Criterion) {
+    for (w, h) in [(640usize, 480usize), (1280, 720)] {
+        let (img, intr, pitch) = frame(w, h);
+        let DepthData::Z16 { data, .. } = img.data() else {
+            unreachable!()
+        };
+        let mut g = c.benchmark_group(format!("estimator_{w}x{h}"));
+        g.throughput(Throughput::Elements((w * h) as u64));
+        g.sample_size(30)
+            .warm_up_time(Duration::from_millis(500))
+            .measurement_time(Duration::from_secs(2));
+
+        g.bench_function("baseline_sum_u16", |b| {
+            b.iter(|| black_box(data).iter().map(|&z| z as u64).sum::<u64>())
+        });
+
+        let params = EstimatorParams::default();
+        let mut est = Estimator::new(params.clone());
+        g.bench_function("estimate_full", |b| {
+            b.iter(|| est.estimate_at(black_box(&img), &intr, pitch, 1).unwrap())
+        });
+        let no_score = EstimatorParams {
+            score: None,
+            ..params.clone()
+        };
+        let mut est_ns = Estimator::new(no_score.clone());
+        g.bench_function("estimate_full_no_score", |b| {
+            b.iter(|| {
+                est_ns
+                    .estimate_at(black_box(&img), &intr, pitch, 1)
+                    .unwrap()
+            })
+        });
+        for level in [2usize, 4] {
+            g.bench_function(format!("estimate_decimation_{level}"), |b| {
+                b.iter(|| {
+                    est.estimate_at(black_box(&img), &intr, pitch, level)
+                        .unwrap()
+                })
+            });
+        }
+        let with_sspa = EstimatorParams {
+            with_sspa: true,
+            ..params.clone()
+        };
+        let mut est_sspa = Estimator::new(with_sspa);
+        g.bench_function("estimate_full_with_sspa", |b| {
+            b.iter(|| {
+                est_sspa
+                    .estimate_at(black_box(&img), &intr, pitch, 1)
+                    .unwrap()
+            })
+        });
+
+        // Stages.
+        let mut grid = InvGrid::default();
+        g.bench_function("stage_inverse_depth", |b| {
+            b.iter(|| {
+                fill_grid(
+                    black_box(&img),
+                    params.track_axis,
+                    1,
+                    &params.depth_range,
+                    &mut grid,
+                )
+            })
+        });
+        fill_grid(&img, params.track_axis, 1, &params.depth_range, &mut grid);
+        let mut sel = Selector::default();
+        let n = (grid.valid - grid.sky) as u64;
+        g.bench_function("stage_percentiles", |b| {
+            b.iter(|| sel.select2(black_box(&grid.w), false, percentile_ranks(n, 0.005, 0.995)))
+        });
+        let bp = BoundaryParams {
+            tau_abs_per_m: params.tau_abs_per_m,
+            tau_rel: params.tau_rel,
+            max_gap_px: params.max_gap_px,
+            sky_is_scene: params.sky_is_scene,
+        };
+        g.bench_function("stage_boundaries", |b| {
+            b.iter(|| scan(black_box(&grid), &bp))
+        });
+        let geom = intr.track(params.track_axis);
+        g.bench_function("stage_sspa_plane_fit", |b| {
+            b.iter(|| plane::fit(black_box(&grid), &geom, pitch, 3, 2.5, &mut sel))
+        });
+        let sp = params.score.clone().unwrap();
+        let mut sgrid = InvGrid::default();
+        fill_grid(
+            &img,
+            params.track_axis,
+            sp.step_px,
+            &params.depth_range,
+            &mut sgrid,
+        );
+        g.bench_function("stage_score", |b| {
+            b.iter(|| {
+                score::score(
+                    black_box(&sgrid),
+                    &geom,
+                    pitch,
+                    &sp.candidates_rad,
+                    0.3,
+                    1.0,
+                    &bp,
+                    sp.min_coverage,
+                )
+            })
+        });
+        g.finish();
+    }
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

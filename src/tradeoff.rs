@@ -24,6 +24,11 @@ pub struct Row {
     pub errors: Vec<f64>,
     /// Median time per frame, microseconds, averaged over frames.
     pub time_us: f64,
+    /// Occlusion model only: mean and max relative error of the occlusion
+    /// density `ρ`, which decimation distorts even where MMDS binds.
+    pub density_error: Option<(f64, f64)>,
+    /// Per frame, where the occlusion term was computed.
+    pub density_errors: Vec<f64>,
 }
 
 fn time_us(est: &mut Estimator, f: &Frame, step: usize, repeats: usize) -> f64 {
@@ -57,23 +62,30 @@ pub fn measure(
             ..base.clone()
         };
         let mut est = Estimator::new(params);
-        let reference: Vec<Option<f64>> = frames
-            .iter()
-            .map(|f| {
-                est.estimate_at(&f.image, &f.intrinsics, f.pitch_rad, 1)
-                    .ok()
-                    .and_then(|e| e.spacing.permissible_m)
-            })
-            .collect();
+        let run = |est: &mut Estimator, f: &Frame, level: usize| {
+            est.estimate_at(&f.image, &f.intrinsics, f.pitch_rad, level)
+                .ok()
+                .map(|e| {
+                    (
+                        e.spacing.permissible_m,
+                        e.occlusion.map(|o| o.density_per_m),
+                    )
+                })
+                .unwrap_or((None, None))
+        };
+        let reference: Vec<_> = frames.iter().map(|f| run(&mut est, f, 1)).collect();
         for &level in levels {
             let mut errors = Vec::with_capacity(frames.len());
+            let mut density_errors = Vec::new();
             let mut total_us = 0.0;
             for (f, r) in frames.iter().zip(&reference) {
-                let got = est
-                    .estimate_at(&f.image, &f.intrinsics, f.pitch_rad, level)
-                    .ok()
-                    .and_then(|e| e.spacing.permissible_m);
-                errors.push(relative_error(got, *r));
+                let got = run(&mut est, f, level);
+                errors.push(relative_error(got.0, r.0));
+                if let (Some(d), Some(dr)) = (got.1, r.1) {
+                    // Both zero (no boundary at either level) is no error.
+                    let positive = |x: f64| (x > 0.0).then_some(x);
+                    density_errors.push(relative_error(positive(d), positive(dr)));
+                }
                 total_us += time_us(&mut est, f, level, repeats);
             }
             let n = errors.len().max(1) as f64;
@@ -84,6 +96,14 @@ pub fn measure(
                 max_error: errors.iter().cloned().fold(0.0, f64::max),
                 errors,
                 time_us: total_us / n,
+                density_error: (!density_errors.is_empty()).then(|| {
+                    let m = density_errors.len() as f64;
+                    (
+                        density_errors.iter().sum::<f64>() / m,
+                        density_errors.iter().cloned().fold(0.0, f64::max),
+                    )
+                }),
+                density_errors,
             });
         }
     }
@@ -95,20 +115,27 @@ pub fn measure(
 pub fn markdown(frames: &[Frame], rows: &[Row]) -> String {
     use std::fmt::Write;
     let mut s = String::new();
-    let _ = writeln!(s, "| model | decimation | mean spacing error | max spacing error | time per frame (µs) | speed-up vs 1 |");
-    let _ = writeln!(s, "|---|---:|---:|---:|---:|---:|");
+    let _ = writeln!(
+        s,
+        "| model | decimation | mean spacing error | max spacing error | occlusion density error (mean / max) | time per frame (µs) | speed-up vs 1 |"
+    );
+    let _ = writeln!(s, "|---|---:|---:|---:|---:|---:|---:|");
     for r in rows {
         let full = rows
             .iter()
             .find(|x| x.model == r.model && x.decimation == 1)
             .map_or(f64::NAN, |x| x.time_us);
+        let density = r.density_error.map_or("–".to_string(), |(m, x)| {
+            format!("{} / {}", pct(m), pct(x))
+        });
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {} | {:.0} | {:.1}× |",
+            "| {} | {} | {} | {} | {} | {:.0} | {:.1}× |",
             r.model.as_str(),
             r.decimation,
             pct(r.mean_error),
             pct(r.max_error),
+            density,
             r.time_us,
             full / r.time_us
         );
@@ -127,6 +154,24 @@ pub fn markdown(frames: &[Frame], rows: &[Row]) -> String {
         }
         let _ = writeln!(s);
     }
+    let _ = writeln!(s);
+    let _ = writeln!(s, "Occlusion density error per frame:\n");
+    let _ = write!(s, "| decimation |");
+    for f in frames {
+        let _ = write!(s, " {} |", f.name);
+    }
+    let _ = writeln!(s);
+    let _ = writeln!(s, "|---:|{}", "---:|".repeat(frames.len()));
+    for r in rows
+        .iter()
+        .filter(|r| r.density_errors.len() == frames.len())
+    {
+        let _ = write!(s, "| {} |", r.decimation);
+        for e in &r.density_errors {
+            let _ = write!(s, " {} |", pct(*e));
+        }
+        let _ = writeln!(s);
+    }
     s
 }
 
@@ -134,7 +179,7 @@ fn pct(x: f64) -> String {
     if x.is_finite() {
         format!("{:.2} %", 100.0 * x)
     } else {
-        "unbounded vs bounded".into()
+        "lost".into()
     }
 }
 

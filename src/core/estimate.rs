@@ -218,7 +218,8 @@ impl Estimator {
     }
 
     /// Estimates at every level; returns the coarsest one whose permissible
-    /// spacing is within `budget` of full resolution (level 1 always qualifies).
+    /// spacing, and occlusion density where computed, are within `budget` of
+    /// full resolution (level 1 always qualifies).
     pub fn calibrate(
         &mut self,
         image: &DepthImage,
@@ -238,7 +239,16 @@ impl Estimator {
             let err = if e.is_ok() != reference.is_ok() {
                 f64::INFINITY
             } else {
+                // The occlusion degree is logged with every capture, so its
+                // error counts even where MMDS binds the spacing.
+                let density =
+                    |e: &Estimate| e.occlusion.map(|o| o.density_per_m).filter(|&d| d > 0.0);
+                let density_err = match (&e.occlusion, &reference.occlusion) {
+                    (Some(_), Some(_)) => relative_error(density(&e), density(&reference)),
+                    _ => 0.0,
+                };
                 relative_error(e.spacing.permissible_m, reference.spacing.permissible_m)
+                    .max(density_err)
             };
             errors.push((level, err));
             if err <= budget && level > best.0 {

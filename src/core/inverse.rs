@@ -43,6 +43,10 @@ pub struct InvGrid {
     pub across_idx: Vec<usize>,
     pub valid: usize,
     pub sky: usize,
+    /// Inverse depth of every Z16 value, for the `(scale, range)` in `lut_key`:
+    /// one load per pixel instead of a conversion and a division.
+    lut: Vec<f32>,
+    lut_key: Option<[u64; 3]>,
 }
 
 impl InvGrid {
@@ -100,67 +104,130 @@ pub fn fill_grid(
     grid.across_idx = sample_indices(across_extent, step);
     grid.per_line = grid.along_idx.len();
     grid.lines = grid.across_idx.len();
-    grid.w.clear();
-    grid.w.reserve(grid.per_line * grid.lines);
-    let index = |along: usize, across: usize| match axis {
-        TrackAxis::Rows => across * w_img + along,
-        TrackAxis::Columns => along * w_img + across,
-    };
-    match image.data() {
-        DepthData::Z16 { data, scale_m } => {
-            // Depth limits become integer limits once, so the inner loop is one
-            // compare and one division.
-            let lo = (range.min_m / scale_m).ceil().max(1.0);
-            let hi = (range.max_m / scale_m).floor().min((u16::MAX - 1) as f64);
-            let (lo, hi) = if lo <= hi {
-                (lo as u16, hi as u16)
-            } else {
-                (1, 0)
-            };
-            let inv_scale = (1.0 / scale_m) as f32;
-            for &a in &grid.across_idx {
-                for &j in &grid.along_idx {
-                    let z = data[index(j, a)];
-                    let w = if z >= lo && z <= hi {
-                        inv_scale / z as f32
-                    } else {
-                        INVALID
-                    };
-                    grid.w.push(w);
-                }
+    // Every sample is overwritten below: resizing to the same size writes nothing.
+    grid.w.resize(grid.per_line * grid.lines, INVALID);
+    match (image.data(), axis) {
+        (DepthData::Z16 { data, scale_m }, _) => {
+            let key = [
+                scale_m.to_bits(),
+                range.min_m.to_bits(),
+                range.max_m.to_bits(),
+            ];
+            if grid.lut_key != Some(key) {
+                grid.lut = z16_table(*scale_m, range);
+                grid.lut_key = Some(key);
             }
+            let lut = std::mem::take(&mut grid.lut);
+            // A fixed-size view: a u16 index needs no bounds check.
+            let table: &[f32; 65536] = lut.as_slice().try_into().expect("65536 entries");
+            fill_lines(grid, axis, w_img, data, |z: u16| table[z as usize]);
+            grid.lut = lut;
         }
-        DepthData::Metres(data) => {
-            for &a in &grid.across_idx {
-                for &j in &grid.along_idx {
-                    grid.w.push(inv_from_metres(data[index(j, a)], range));
-                }
-            }
+        (DepthData::Metres(data), _) => {
+            fill_lines(grid, axis, w_img, data, |d| inv_from_metres(d, range));
         }
     }
-    let mut valid = 0usize;
-    let mut sky = 0usize;
-    for &w in &grid.w {
-        valid += (w >= 0.0) as usize;
-        sky += (w == SKY) as usize;
+    // Counted per line in u32 lanes, which vectorise four wide.
+    let (mut valid, mut sky) = (0usize, 0usize);
+    for line in grid.w.chunks_exact(grid.per_line.max(1)) {
+        valid += line.iter().map(|&w| (w >= 0.0) as u32).sum::<u32>() as usize;
+        sky += line.iter().map(|&w| (w == SKY) as u32).sum::<u32>() as usize;
     }
     grid.valid = valid;
     grid.sky = sky;
 }
 
-/// Scratch for radix selection (three levels of 2048 bins, two targets).
+/// Inverse depth of each Z16 value: no return (0), saturation (`u16::MAX`) and
+/// depths outside `range` are `INVALID`.
+fn z16_table(scale_m: f64, range: &DepthRange) -> Vec<f32> {
+    let lo = (range.min_m / scale_m).ceil().max(1.0);
+    let hi = (range.max_m / scale_m).floor().min((u16::MAX - 1) as f64);
+    let inv_scale = (1.0 / scale_m) as f32;
+    (0..=u16::MAX)
+        .map(|z| {
+            let zf = z as f64;
+            if zf >= lo && zf <= hi {
+                inv_scale / z as f32
+            } else {
+                INVALID
+            }
+        })
+        .collect()
+}
+
+/// Converts the sampled pixels line by line; the common case (rows along
+/// track, every pixel) is a straight map over each row, which vectorises.
+fn fill_lines<T: Copy>(
+    grid: &mut InvGrid,
+    axis: TrackAxis,
+    w_img: usize,
+    data: &[T],
+    convert: impl Fn(T) -> f32,
+) {
+    let per_line = grid.per_line;
+    for (a, out) in grid.w.chunks_exact_mut(per_line).enumerate() {
+        let across = grid.across_idx[a];
+        match axis {
+            TrackAxis::Rows if grid.step == 1 => {
+                let row = &data[across * w_img..across * w_img + per_line];
+                for (o, &z) in out.iter_mut().zip(row) {
+                    *o = convert(z);
+                }
+            }
+            TrackAxis::Rows => {
+                let row = &data[across * w_img..(across + 1) * w_img];
+                for (o, &j) in out.iter_mut().zip(&grid.along_idx) {
+                    *o = convert(row[j]);
+                }
+            }
+            TrackAxis::Columns => {
+                for (o, &j) in out.iter_mut().zip(&grid.along_idx) {
+                    *o = convert(data[j * w_img + across]);
+                }
+            }
+        }
+    }
+}
+
+/// Scratch for radix selection: four interleaved 2048-bin histograms (so runs
+/// of equal values do not serialise on one counter) and the candidate values
+/// of the two targets.
 #[derive(Debug, Clone)]
 pub struct Selector {
     hist: Vec<u32>,
-    hist2: [Vec<u32>; 2],
+    cand: [Vec<f32>; 2],
 }
 
 impl Default for Selector {
     fn default() -> Self {
         Selector {
-            hist: vec![0; 2048],
-            hist2: [vec![0; 2048], vec![0; 2048]],
+            hist: vec![0; 4 * BINS],
+            cand: [Vec::new(), Vec::new()],
         }
+    }
+}
+
+const BINS: usize = 2048;
+
+/// Histogram of `(bits >> shift) & mask` into `hist[..BINS]`.
+fn histogram(hist: &mut [u32], values: &[f32], shift: u32, mask: u32) {
+    hist.iter_mut().for_each(|c| *c = 0);
+    let (h0, rest) = hist.split_at_mut(BINS);
+    let (h1, rest) = rest.split_at_mut(BINS);
+    let (h2, h3) = rest.split_at_mut(BINS);
+    let bin = |w: f32| ((w.to_bits() >> shift) & mask) as usize;
+    let mut chunks = values.chunks_exact(4);
+    for c in &mut chunks {
+        h0[bin(c[0])] += 1;
+        h1[bin(c[1])] += 1;
+        h2[bin(c[2])] += 1;
+        h3[bin(c[3])] += 1;
+    }
+    for &w in chunks.remainder() {
+        h0[bin(w)] += 1;
+    }
+    for i in 0..BINS {
+        h0[i] += h1[i] + h2[i] + h3[i];
     }
 }
 
@@ -177,10 +244,9 @@ fn find_bin(hist: &[u32], mut rank: u64) -> (usize, u64) {
 }
 
 impl Selector {
-    /// Exact order statistics (0-based `ranks` among the values `>= floor`)
-    /// of a slice whose values are `INVALID`, `SKY` or positive. `floor` is
-    /// `0.0` to include the sky, or the smallest positive `f32` to exclude it.
-    /// Returns `None` when fewer values pass than a rank needs.
+    /// Exact order statistics (0-based `ranks`) of the valid values of a slice
+    /// whose values are `INVALID`, `SKY` or positive; the sky counts only with
+    /// `include_sky`. `None` when fewer values pass than a rank needs.
     pub fn select2(
         &mut self,
         values: &[f32],
@@ -188,13 +254,9 @@ impl Selector {
         ranks: [u64; 2],
     ) -> Option<[f32; 2]> {
         // Level 1: top 11 bits. Negative values (INVALID) fall in bins >= 1024.
-        self.hist.iter_mut().for_each(|c| *c = 0);
-        for &w in values {
-            self.hist[(w.to_bits() >> 21) as usize] += 1;
-        }
+        histogram(&mut self.hist, values, 21, 0x7FF);
         if !include_sky {
-            // SKY is +0.0, the only value in bin 0 with a zero mantissa; bin 0 also
-            // holds subnormals, which no depth produces, so drop it whole.
+            // SKY is +0.0, in bin 0 with the subnormals, which no depth produces.
             self.hist[0] = 0;
         }
         let total: u64 = self.hist[..1024].iter().map(|&c| c as u64).sum();
@@ -208,31 +270,45 @@ impl Selector {
             prefix[t] = b as u32;
             rem[t] = r;
         }
-        // Levels 2 and 3: narrow each target by 11 then 10 more bits.
-        for (shift, width_bits) in [(10u32, 11u32), (0, 10)] {
-            for h in self.hist2.iter_mut() {
-                h.iter_mut().for_each(|c| *c = 0);
-            }
-            let mask = (1u32 << width_bits) - 1;
-            let top_shift = shift + width_bits;
-            for &w in values {
-                let bits = w.to_bits();
-                let top = bits >> top_shift;
-                let low = ((bits >> shift) & mask) as usize;
-                if top == prefix[0] {
-                    self.hist2[0][low] += 1;
-                }
-                if top == prefix[1] {
-                    self.hist2[1][low] += 1;
-                }
-            }
-            for t in 0..2 {
-                let (b, r) = find_bin(&self.hist2[t][..=mask as usize], rem[t]);
-                prefix[t] = (prefix[t] << width_bits) | b as u32;
-                rem[t] = r;
+        // The candidates of each target: the values in its level-1 bin.
+        let same = prefix[0] == prefix[1];
+        let [c0, c1] = &mut self.cand;
+        c0.clear();
+        c1.clear();
+        for &w in values {
+            let top = w.to_bits() >> 21;
+            if top == prefix[0] {
+                c0.push(w);
+            } else if !same && top == prefix[1] {
+                c1.push(w);
             }
         }
-        Some([f32::from_bits(prefix[0]), f32::from_bits(prefix[1])])
+        let mut out = [0f32; 2];
+        for t in 0..2 {
+            let src = if same { 0 } else { t };
+            // Level 2: the next 11 bits; level 3: the last 10, on the survivors.
+            histogram(&mut self.hist, &self.cand[src], 10, 0x7FF);
+            let (b2, r2) = find_bin(&self.hist[..BINS], rem[t]);
+            let p22 = (prefix[t] << 11) | b2 as u32;
+            let keep = |w: &f32| w.to_bits() >> 10 == p22;
+            let [c0, c1] = &mut self.cand;
+            let survivors: &[f32] = if same {
+                // Both targets share c0; filter into the unused c1.
+                c1.clear();
+                c1.extend(c0.iter().copied().filter(keep));
+                c1
+            } else if t == 0 {
+                c0.retain(keep);
+                c0
+            } else {
+                c1.retain(keep);
+                c1
+            };
+            histogram(&mut self.hist, survivors, 0, 0x3FF);
+            let (b3, _) = find_bin(&self.hist[..1024], r2);
+            out[t] = f32::from_bits((p22 << 10) | b3 as u32);
+        }
+        Some(out)
     }
 }
 
