@@ -136,10 +136,19 @@ pub fn run() -> Result<ExitCode> {
         Command::Estimate(a) => estimate(a),
         Command::CheckConfig { file } => {
             Config::load(&file).map_err(|e| bad(e.to_string()))?;
-            println!("{}: ok", file.display());
+            emit(&format!("{}: ok\n", file.display()))?;
             Ok(ExitCode::SUCCESS)
         }
         Command::Tradeoff(a) => run_tradeoff(a),
+    }
+}
+
+/// Writes to stdout; a closed pipe (`alfd ... | head`) is not an error.
+fn emit(text: &str) -> Result<()> {
+    use std::io::Write;
+    match std::io::stdout().lock().write_all(text.as_bytes()) {
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
+        other => other.context("writing to stdout"),
     }
 }
 
@@ -229,12 +238,15 @@ fn estimate(a: EstimateArgs) -> Result<ExitCode> {
     };
     if a.json {
         let v = estimate_json(&e, &cfg.estimator, choice.as_ref(), &input, elapsed_us);
-        println!("{}", serde_json::to_string_pretty(&v)?);
+        emit(&format!("{}\n", serde_json::to_string_pretty(&v)?))?;
     } else {
-        print!(
-            "{}",
-            estimate_text(&e, &cfg.estimator, choice.as_ref(), &input, elapsed_us)
-        );
+        emit(&estimate_text(
+            &e,
+            &cfg.estimator,
+            choice.as_ref(),
+            &input,
+            elapsed_us,
+        ))?;
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -270,14 +282,14 @@ fn run_tradeoff(a: TradeoffArgs) -> Result<ExitCode> {
         &alfd::core::params::DECIMATION_LEVELS,
         a.repeats,
     );
-    println!(
+    emit(&format!(
         "Spacing error of each decimation level against full resolution, and time per frame \
-         ({} frames of {}x{}, median of {} runs; score left out).\n",
+         ({} frames of {}x{}, median of {} runs; score left out).\n\n{}",
         frames.len(),
         a.width,
         a.height,
-        a.repeats
-    );
-    print!("{}", tradeoff::markdown(&frames, &rows));
+        a.repeats,
+        tradeoff::markdown(&frames, &rows)
+    ))?;
     Ok(ExitCode::SUCCESS)
 }

@@ -104,7 +104,7 @@ impl Default for EstimatorParams {
             score: Some(ScoreParams {
                 candidates_rad: (-9..=9).map(|k| (k as f64 * 5.0).to_radians()).collect(),
                 step_px: 8,
-                min_coverage: 0.5,
+                min_coverage: 0.75,
             }),
             occlusion_max: 0.01,
             beta: 1.0,

@@ -80,10 +80,12 @@ pub fn score(
                 &mut stats,
             );
         }
+        // The part of the candidate's view this frame does not see is unknown,
+        // not free of occlusion: extrapolate what is seen to the whole view.
         let rho = occlusion_density_per_m(
             beta,
             disparity_gain_px(f, cand),
-            stats.mean_contrast_per_m(),
+            stats.mean_contrast_per_m() / coverage,
             geom.half_extent_px,
         );
         out.push(PitchScore {

@@ -1,0 +1,20 @@
+#!/usr/bin/env bash
+# Installs what a fresh Debian 12 machine with the Rust toolchain lacks for
+# alfd, then fetches the crates. Idempotent: run it again at any time.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+command -v cargo >/dev/null || { echo "setup: cargo not found; install Rust (rustup) first" >&2; exit 1; }
+
+# Debian packages: python3 runs scripts/bench-ratios.py.
+need=()
+command -v python3 >/dev/null || need+=(python3)
+if ((${#need[@]})); then
+    sudo=""
+    [ "$(id -u)" -eq 0 ] || sudo="sudo"
+    $sudo apt-get update -q
+    $sudo apt-get install -y -q "${need[@]}"
+fi
+
+cargo fetch --locked
+echo "setup: ok"
