@@ -1,0 +1,1 @@
+//! firmware-sim: a simulated autopilot (work in progress).
