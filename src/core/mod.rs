@@ -10,6 +10,7 @@ pub mod params;
 pub mod plane;
 pub mod score;
 pub mod spacing;
+pub mod trigger;
 
 pub use depth::{DepthData, DepthError, DepthImage, Intrinsics, IntrinsicsError, TrackAxis};
 pub use estimate::{estimate, Bound, Estimate, EstimateError, Estimator, NoEstimate};
