@@ -9,6 +9,8 @@ command -v cargo >/dev/null || { echo "setup: cargo not found; install Rust (rus
 # Debian packages: python3 runs scripts/bench-ratios.py.
 need=()
 command -v python3 >/dev/null || need+=(python3)
+# libclang-dev: the v4l2 feature builds V4L2 bindings with bindgen.
+dpkg -s libclang-dev >/dev/null 2>&1 || need+=(libclang-dev)
 if ((${#need[@]})); then
     sudo=""
     [ "$(id -u)" -eq 0 ] || sudo="sudo"

@@ -5,5 +5,6 @@ pub mod config;
 pub mod core;
 pub mod depthio;
 pub mod report;
+pub mod source;
 pub mod synth;
 pub mod tradeoff;

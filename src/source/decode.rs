@@ -1,0 +1,136 @@
+//! Decoding of raw V4L2 buffers, outside the device code so it is tested on
+//! recorded buffers on machines without a camera: YUYV 4:2:2, MJPEG (including
+//! UVC frames that omit their Huffman tables) and Z16 depth.
+
+use super::ColorImage;
+use crate::core::DepthImage;
+use crate::depthio::{decode_z16, DepthFileError};
+use thiserror::Error;
+
+#[derive(Debug, Error, PartialEq)]
+pub enum DecodeError {
+    #[error("YUYV {width}x{height} needs {expected} bytes, the buffer has {found}")]
+    YuyvSize {
+        width: usize,
+        height: usize,
+        expected: usize,
+        found: usize,
+    },
+    #[error("YUYV width must be even, got {0}")]
+    YuyvOddWidth(usize),
+    #[error("MJPEG frame does not decode: {0}")]
+    Mjpeg(String),
+    #[error("Z16 frame: {0}")]
+    Z16(String),
+}
+
+/// YUYV (YUY2) 4:2:2 to RGB8, BT.601 limited range as UVC cameras send it.
+pub fn yuyv_to_rgb(width: usize, height: usize, buf: &[u8]) -> Result<ColorImage, DecodeError> {
+    if width % 2 != 0 {
+        return Err(DecodeError::YuyvOddWidth(width));
+    }
+    let expected = width * height * 2;
+    // Drivers may pad the buffer (bytesused > image); never read less.
+    if buf.len() < expected {
+        return Err(DecodeError::YuyvSize {
+            width,
+            height,
+            expected,
+            found: buf.len(),
+        });
+    }
+    let mut rgb = Vec::with_capacity(width * height * 3);
+    for px in buf[..expected].chunks_exact(4) {
+        let (y0, u, y1, v) = (px[0], px[1], px[2], px[3]);
+        for y in [y0, y1] {
+            rgb.extend_from_slice(&ycbcr_to_rgb(y, u, v));
+        }
+    }
+    Ok(ColorImage { width, height, rgb })
+}
+
+fn ycbcr_to_rgb(y: u8, u: u8, v: u8) -> [u8; 3] {
+    let c = (y as f32 - 16.0) * 1.164;
+    let d = u as f32 - 128.0;
+    let e = v as f32 - 128.0;
+    let clamp = |x: f32| x.round().clamp(0.0, 255.0) as u8;
+    [
+        clamp(c + 1.596 * e),
+        clamp(c - 0.392 * d - 0.813 * e),
+        clamp(c + 2.017 * d),
+    ]
+}
+
+/// An MJPEG frame to RGB8. UVC cameras drop the Huffman tables from each
+/// frame; the decoder then uses the standard tables (JPEG Annex K), as the UVC
+/// MJPEG payload specification says.
+pub fn mjpeg_to_rgb(buf: &[u8]) -> Result<ColorImage, DecodeError> {
+    let mut dec = jpeg_decoder::Decoder::new(buf);
+    let pixels = dec.decode().map_err(|e| DecodeError::Mjpeg(e.to_string()))?;
+    let info = dec.info().ok_or_else(|| DecodeError::Mjpeg("no frame header".into()))?;
+    let (width, height) = (info.width as usize, info.height as usize);
+    let rgb = match info.pixel_format {
+        jpeg_decoder::PixelFormat::RGB24 => pixels,
+        jpeg_decoder::PixelFormat::L8 => pixels.iter().flat_map(|&l| [l, l, l]).collect(),
+        other => return Err(DecodeError::Mjpeg(format!("unsupported pixel format {other:?}"))),
+    };
+    if rgb.len() != width * height * 3 {
+        return Err(DecodeError::Mjpeg(format!(
+            "{width}x{height} frame decoded to {} bytes",
+            rgb.len()
+        )));
+    }
+    Ok(ColorImage { width, height, rgb })
+}
+
+/// A Z16 buffer (little-endian u16, `scale_m` metres per unit). Padding beyond
+/// the image (`bytesused` larger than `width·height·2`) is ignored.
+pub fn z16_to_depth(width: usize, height: usize, buf: &[u8], scale_m: f64) -> Result<DepthImage, DecodeError> {
+    let n = width.checked_mul(height).and_then(|p| p.checked_mul(2));
+    let bytes = match n {
+        Some(n) if buf.len() >= n => &buf[..n],
+        _ => buf,
+    };
+    decode_z16(bytes, width, height, scale_m).map_err(|e: DepthFileError| DecodeError::Z16(e.to_string()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn yuyv_known_values() {
+        // Y=16,U=V=128 is black; Y=235 white; Y=81,U=90,V=240 is (limited) red.
+        let buf = [16, 128, 235, 128, 81, 90, 81, 240];
+        let img = yuyv_to_rgb(4, 1, &buf).unwrap();
+        assert_eq!(&img.rgb[0..3], &[0, 0, 0]);
+        assert_eq!(&img.rgb[3..6], &[255, 255, 255]);
+        let red = &img.rgb[6..9];
+        assert!(red[0] > 240 && red[1] < 10 && red[2] < 10, "{red:?}");
+        assert_eq!(
+            yuyv_to_rgb(4, 2, &buf),
+            Err(DecodeError::YuyvSize {
+                width: 4,
+                height: 2,
+                expected: 16,
+                found: 8
+            })
+        );
+        assert_eq!(yuyv_to_rgb(3, 1, &buf), Err(DecodeError::YuyvOddWidth(3)));
+    }
+
+    #[test]
+    fn z16_ignores_driver_padding_and_rejects_short_buffers() {
+        let mut buf = vec![0u8; 2 * 4 * 2 + 16];
+        buf[0..2].copy_from_slice(&1234u16.to_le_bytes());
+        let d = z16_to_depth(4, 2, &buf, 0.001).unwrap();
+        assert_eq!(d.width(), 4);
+        assert!(matches!(z16_to_depth(4, 2, &buf[..10], 0.001), Err(DecodeError::Z16(_))));
+    }
+
+    #[test]
+    fn garbage_mjpeg_is_an_error_not_a_panic() {
+        assert!(mjpeg_to_rgb(&[0xFF, 0xD8, 0xFF, 0x00, 1, 2, 3]).is_err());
+        assert!(mjpeg_to_rgb(&[]).is_err());
+    }
+}
