@@ -116,7 +116,7 @@ fn bench(c: &mut Criterion) {
             sky_is_scene: params.sky_is_scene,
         };
         g.bench_function("stage_boundaries", |b| {
-            b.iter(|| scan(black_box(&grid), &bp))
+            b.iter(|| scan(black_box(&grid), &bp, None))
         });
         let geom = intr.track(params.track_axis);
         g.bench_function("stage_sspa_plane_fit", |b| {

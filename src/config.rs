@@ -4,7 +4,7 @@
 //! `[estimator]`, `[score]`; later parts of the daemon add their own.
 
 use crate::core::inverse::DepthRange;
-use crate::core::params::{Decimation, DECIMATION_LEVELS};
+use crate::core::params::{Decimation, GainModel, DECIMATION_LEVELS};
 use crate::core::{EstimatorParams, Model, ParamError, TrackAxis};
 use serde::Deserialize;
 use std::path::Path;
@@ -77,6 +77,7 @@ pub struct RawEstimator {
     pub depth_max_m: Option<f64>,
     pub pitch_max_deg: Option<f64>,
     pub track_axis: Option<String>,
+    pub disparity_gain: Option<String>,
     pub decimation: Option<RawDecimation>,
     pub decimation_budget: Option<f64>,
     pub decimation_levels: Option<Vec<i64>>,
@@ -213,6 +214,18 @@ impl RawConfig {
                     return Err(bad(
                         "estimator.track_axis",
                         format!("unknown axis {other:?}: use \"rows\" or \"columns\""),
+                    ))
+                }
+            };
+        }
+        if let Some(g) = &e.disparity_gain {
+            p.gain_model = match g.as_str() {
+                "axis" => GainModel::Axis,
+                "pixel" => GainModel::Pixel,
+                other => {
+                    return Err(bad(
+                        "estimator.disparity_gain",
+                        format!("unknown gain {other:?}: use \"axis\" (DESIGN, f·cos φ) or \"pixel\" (f·cos φ − v·sin φ)"),
                     ))
                 }
             };

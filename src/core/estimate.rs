@@ -5,7 +5,7 @@
 use super::depth::{DepthImage, Intrinsics};
 use super::inverse::{fill_grid, percentile_ranks, InvGrid, Selector};
 use super::occlusion::{scan, BoundaryParams, BoundaryStats};
-use super::params::{Decimation, EstimatorParams, Model};
+use super::params::{Decimation, EstimatorParams, GainModel, Model};
 use super::plane::{fit, PlaneFit};
 use super::score::{best, score, PitchScore};
 use super::spacing::{
@@ -350,7 +350,17 @@ impl Estimator {
         };
         let want_occlusion = p.model == Model::Occlusion || p.with_occlusion;
         if want_occlusion {
-            stats = scan(&self.grid, &bparams);
+            let weights: Option<Vec<f64>> = (p.gain_model == GainModel::Pixel).then(|| {
+                // Relative to the axis gain f·cos φ, which ρ's formula carries.
+                let (s, c) = pitch_rad.sin_cos();
+                let axis = geom.focal_px * c;
+                self.grid
+                    .along_idx
+                    .iter()
+                    .map(|&i| ((axis - geom.v_px(i) * s) / axis).abs())
+                    .collect()
+            });
+            stats = scan(&self.grid, &bparams, weights.as_deref());
             density = occlusion_density_per_m(
                 p.beta,
                 gain,

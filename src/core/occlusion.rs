@@ -49,7 +49,9 @@ fn usable(w: f32, sky_is_scene: bool) -> bool {
 
 /// Scan one line; `scale[j]` multiplies each sample (1 for the camera's own
 /// view, the depth re-projection factor for a candidate pitch) and `keep[j]`
-/// masks samples outside the candidate's field of view.
+/// masks samples outside the candidate's field of view. `weight[j]`, if
+/// given, scales the contrast of a boundary by the mean weight of its two
+/// samples (the per-pixel disparity gain relative to the optical axis).
 ///
 /// The relative threshold grows with the sampling step: it bounds the inverse
 /// depth *gradient* (per pixel) that a surface may have, so a steep wall that
@@ -63,9 +65,11 @@ pub fn scan_line(
     p: &BoundaryParams,
     scale: Option<&[f64]>,
     keep: Option<&[bool]>,
+    weight: Option<&[f64]>,
     stats: &mut BoundaryStats,
 ) {
     let step = step.max(1);
+    let weigh = |diff: f64, ja: usize, jb: usize| weight.map_or(diff, |g| diff * 0.5 * (g[ja] + g[jb]));
     let tau_rel = p.tau_rel * step as f64;
     if scale.is_none() && keep.is_none() && line.len() >= 2 {
         // Most lines have no masked sample: compare neighbours directly.
@@ -74,12 +78,12 @@ pub fn scan_line(
             .fold(true, |acc, &w| acc & usable(w, p.sky_is_scene));
         if all_usable {
             let mut prev = line[0] as f64;
-            for &w in &line[1..] {
+            for (j, &w) in line.iter().enumerate().skip(1) {
                 let w = w as f64;
                 let diff = (w - prev).abs();
                 if diff > p.tau_abs_per_m + tau_rel * w.max(prev) {
                     stats.boundaries += 1;
-                    stats.contrast_sum_per_m += diff;
+                    stats.contrast_sum_per_m += weigh(diff, j - 1, j);
                 }
                 prev = w;
             }
@@ -101,7 +105,7 @@ pub fn scan_line(
                 let diff = (w - wl).abs();
                 if diff > p.tau_abs_per_m + tau_rel * w.max(wl) {
                     stats.boundaries += 1;
-                    stats.contrast_sum_per_m += diff;
+                    stats.contrast_sum_per_m += weigh(diff, jl, j);
                 }
             }
         }
@@ -112,11 +116,12 @@ pub fn scan_line(
     }
 }
 
-/// Boundaries over every line of the grid, in the camera's own view.
-pub fn scan(grid: &InvGrid, p: &BoundaryParams) -> BoundaryStats {
+/// Boundaries over every line of the grid, in the camera's own view, with an
+/// optional per-sample weight on the contrast.
+pub fn scan(grid: &InvGrid, p: &BoundaryParams, weight: Option<&[f64]>) -> BoundaryStats {
     let mut stats = BoundaryStats::default();
     for a in 0..grid.lines {
-        scan_line(grid.line(a), grid.step, p, None, None, &mut stats);
+        scan_line(grid.line(a), grid.step, p, None, None, weight, &mut stats);
     }
     stats
 }

@@ -38,6 +38,17 @@ impl Model {
     }
 }
 
+/// The disparity gain an occlusion edge's contrast is multiplied by.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum GainModel {
+    /// DESIGN §1: `f·cos φ`, the gain on the optical axis, for every edge.
+    #[default]
+    Axis,
+    /// The exact first-order gain at the edge's own pixel, `f·cos φ − v·sin φ`
+    /// (`docs/occlusion-check.md`: removes the `(v/f)·tan φ` bias off nadir).
+    Pixel,
+}
+
 /// How finely the depth map is sampled.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Decimation {
@@ -90,6 +101,7 @@ pub struct EstimatorParams {
     pub depth_range: DepthRange,
     pub pitch_max_rad: f64,
     pub track_axis: TrackAxis,
+    pub gain_model: GainModel,
     pub decimation: Decimation,
     pub sspa_iterations: usize,
     pub sspa_trim_sigma: f64,
@@ -124,6 +136,7 @@ impl Default for EstimatorParams {
             depth_range: DepthRange::default(),
             pitch_max_rad: 80f64.to_radians(),
             track_axis: TrackAxis::Rows,
+            gain_model: GainModel::Axis,
             decimation: Decimation::Fixed(1),
             sspa_iterations: 3,
             sspa_trim_sigma: 2.5,

@@ -77,6 +77,7 @@ pub fn score(
                 params,
                 Some(&scale),
                 Some(&keep),
+                None,
                 &mut stats,
             );
         }
