@@ -11,6 +11,8 @@ need=()
 command -v python3 >/dev/null || need+=(python3)
 # libclang-dev: the v4l2 feature builds V4L2 bindings with bindgen.
 dpkg -s libclang-dev >/dev/null 2>&1 || need+=(libclang-dev)
+# exiftool: the capture tests read the EXIF GPS tags back.
+command -v exiftool >/dev/null || need+=(libimage-exiftool-perl)
 if ((${#need[@]})); then
     sudo=""
     [ "$(id -u)" -eq 0 ] || sudo="sudo"

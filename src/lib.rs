@@ -1,6 +1,7 @@
 //! alfd: occlusion-aware light-field sampling for drone captures.
 //! `core` is pure numerics; everything else is the edges (files, devices, links).
 
+pub mod capture;
 pub mod config;
 pub mod core;
 pub mod depthio;

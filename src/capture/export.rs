@@ -1,0 +1,425 @@
+//! Exports of a flight's manifest for the tools that use the images: OpenDroneMap
+//! `geo.txt` and nerfstudio `transforms.json`, with the camera pose maths they
+//! share. Encoders are pure; [`write_exports`] writes them through a store.
+//!
+//! Frames: the camera (OpenCV axes: x right in the image, y down, z along the
+//! optical axis) equals the vehicle's FRD body frame at camera pitch 0 (image
+//! columns run forward, rows to the right, see `crate::synth`); a forward camera
+//! pitch φ rotates it about the body's right axis. Body → NED by the autopilot's
+//! ZYX Euler angles; world = local ENU metres around the home point.
+
+use glam::{DMat3, DMat4, DVec3, DVec4};
+use serde::{Deserialize, Serialize};
+
+use super::record::{is_image_name_for, Attitude, CameraIntrinsics, CaptureRecord};
+use super::store::{CaptureStore, StoreError};
+
+pub const GEO_TXT: &str = "geo.txt";
+pub const TRANSFORMS_JSON: &str = "transforms.json";
+
+/// Vehicle body (FRD) → NED, from the autopilot's roll, pitch, yaw (ZYX, radians).
+pub fn body_to_ned(roll_rad: f64, pitch_rad: f64, yaw_rad: f64) -> DMat3 {
+    DMat3::from_rotation_z(yaw_rad)
+        * DMat3::from_rotation_y(pitch_rad)
+        * DMat3::from_rotation_x(roll_rad)
+}
+
+/// OpenCV camera → body (FRD): a rotation by the camera pitch about the body's
+/// right (y) axis, so the optical axis is (sin φ, 0, cos φ) and the image's x axis
+/// (cos φ, 0, −sin φ).
+pub fn camera_to_body(camera_pitch_rad: f64) -> DMat3 {
+    DMat3::from_rotation_y(camera_pitch_rad)
+}
+
+/// NED → ENU: swap the horizontal axes, flip the vertical one.
+pub const NED_TO_ENU: DMat3 = DMat3::from_cols(
+    DVec3::new(0.0, 1.0, 0.0),
+    DVec3::new(1.0, 0.0, 0.0),
+    DVec3::new(0.0, 0.0, -1.0),
+);
+
+/// OpenGL camera axes (x right, y up, z back) → OpenCV camera axes: flip y and z.
+pub const GL_TO_CV: DMat3 = DMat3::from_diagonal(DVec3::new(1.0, -1.0, -1.0));
+
+/// Rotation of the camera in OpenGL axes → NED.
+pub fn camera_gl_to_ned(att: &Attitude) -> DMat3 {
+    body_to_ned(
+        att.roll_deg.to_radians(),
+        att.pitch_deg.to_radians(),
+        att.yaw_deg.to_radians(),
+    ) * camera_to_body(att.camera_pitch_deg.to_radians())
+        * GL_TO_CV
+}
+
+/// nerfstudio's `transform_matrix`: camera (OpenGL axes) → world (local ENU, metres).
+pub fn camera_to_world_gl(att: &Attitude, enu_m: DVec3) -> DMat4 {
+    let r = NED_TO_ENU * camera_gl_to_ned(att);
+    DMat4::from_cols(
+        r.x_axis.extend(0.0),
+        r.y_axis.extend(0.0),
+        r.z_axis.extend(0.0),
+        DVec4::new(enu_m.x, enu_m.y, enu_m.z, 1.0),
+    )
+}
+
+/// ODM's image frame (x right, y up = "top of the image", z back) → its body frame
+/// (`opendm/photo.py`, `compute_opk`: top of the image points in the flying direction,
+/// camera looking down). The matrix is its own inverse.
+const ODM_CAMERA_TO_BODY: DMat3 = DMat3::from_cols(
+    DVec3::new(0.0, 1.0, 0.0),
+    DVec3::new(1.0, 0.0, 0.0),
+    DVec3::new(0.0, 0.0, -1.0),
+);
+
+/// ZYX Euler angles (yaw, pitch, roll; degrees) of a rotation → NED.
+fn zyx_deg(m: DMat3) -> (f64, f64, f64) {
+    let pitch = (-m.x_axis.z).clamp(-1.0, 1.0).asin();
+    let roll = m.y_axis.z.atan2(m.z_axis.z);
+    let yaw = m.x_axis.y.atan2(m.x_axis.x);
+    // `+ 0.0` turns −0 into 0, so a level camera prints "0.0000", not "-0.0000".
+    (
+        yaw.to_degrees() + 0.0,
+        pitch.to_degrees() + 0.0,
+        roll.to_degrees() + 0.0,
+    )
+}
+
+/// The (yaw, pitch, roll) in degrees to write in `geo.txt` so that ODM's
+/// `compute_opk` (R = Rz(yaw)·Ry(pitch)·Rx(roll)·ODM_CAMERA_TO_BODY) gives back the
+/// true camera orientation. Not the vehicle's angles: ODM assumes the image's top
+/// points forward, while alfd's image columns do, so a nadir camera at vehicle
+/// yaw ψ is ODM yaw ψ − 90°; the camera pitch is folded in too.
+pub fn odm_ypr_deg(att: &Attitude) -> (f64, f64, f64) {
+    zyx_deg(camera_gl_to_ned(att) * ODM_CAMERA_TO_BODY)
+}
+
+/// Why a record is not in an export.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Skip {
+    NoImage,
+    ImageNameNotFromSeq,
+    NoPosition,
+    NoAttitude,
+    NoIntrinsics,
+}
+
+fn image_of(r: &CaptureRecord) -> Result<&str, Skip> {
+    let name = r.image.as_deref().ok_or(Skip::NoImage)?;
+    if !is_image_name_for(name, r.seq) {
+        return Err(Skip::ImageNameNotFromSeq);
+    }
+    Ok(name)
+}
+
+fn finite(xs: &[f64]) -> bool {
+    xs.iter().all(|x| x.is_finite())
+}
+
+/// OpenDroneMap `geo.txt`: `EPSG:4326`, then one line per captured image:
+/// `image_name lon lat alt_amsl yaw pitch roll` (degrees, metres; angles per
+/// [`odm_ypr_deg`], left out when the attitude is unknown). Returns the text and
+/// the records left out, by sequence number.
+pub fn geo_txt(records: &[CaptureRecord]) -> (String, Vec<(u64, Skip)>) {
+    let mut out = String::from("EPSG:4326\n");
+    let mut skipped = Vec::new();
+    for r in records {
+        let name = match image_of(r) {
+            Ok(n) => n,
+            Err(s) => {
+                skipped.push((r.seq, s));
+                continue;
+            }
+        };
+        let p = &r.position;
+        if !finite(&[p.lat_deg, p.lon_deg, p.alt_m]) {
+            skipped.push((r.seq, Skip::NoPosition));
+            continue;
+        }
+        out += &format!("{name} {:.9} {:.9} {:.3}", p.lon_deg, p.lat_deg, p.alt_m);
+        let (yaw, pitch, roll) = odm_ypr_deg(&r.attitude);
+        if finite(&[yaw, pitch, roll]) {
+            out += &format!(" {yaw:.4} {pitch:.4} {roll:.4}");
+        }
+        out.push('\n');
+    }
+    (out, skipped)
+}
+
+/// One frame of `transforms.json`. Intrinsics appear per frame only where they
+/// differ from the file's.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct NerfFrame {
+    pub file_path: String,
+    /// Camera-to-world, rows of the 4×4 matrix, OpenGL camera axes, world = ENU metres.
+    pub transform_matrix: [[f64; 4]; 4],
+    #[serde(flatten, skip_serializing_if = "Option::is_none", default)]
+    pub intrinsics: Option<NerfIntrinsics>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct NerfIntrinsics {
+    pub fl_x: f64,
+    pub fl_y: f64,
+    pub cx: f64,
+    pub cy: f64,
+    pub w: u32,
+    pub h: u32,
+}
+
+impl From<CameraIntrinsics> for NerfIntrinsics {
+    fn from(c: CameraIntrinsics) -> Self {
+        NerfIntrinsics {
+            fl_x: c.focal_px,
+            fl_y: c.focal_px,
+            cx: c.cx_px,
+            cy: c.cy_px,
+            w: c.width,
+            h: c.height,
+        }
+    }
+}
+
+/// nerfstudio `transforms.json` (pinhole, `OPENCV` with zero distortion).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct NerfTransforms {
+    pub camera_model: String,
+    #[serde(flatten)]
+    pub intrinsics: NerfIntrinsics,
+    pub k1: f64,
+    pub k2: f64,
+    pub p1: f64,
+    pub p2: f64,
+    pub frames: Vec<NerfFrame>,
+}
+
+/// Row-major rows of a glam (column-major) matrix.
+pub fn rows(m: &DMat4) -> [[f64; 4]; 4] {
+    let t = m.transpose();
+    [
+        t.x_axis.to_array(),
+        t.y_axis.to_array(),
+        t.z_axis.to_array(),
+        t.w_axis.to_array(),
+    ]
+}
+
+/// The transforms of the records with an image, a pose and intrinsics; `None`
+/// when there is none (nerfstudio needs intrinsics). Also returns the records left out.
+pub fn transforms(records: &[CaptureRecord]) -> (Option<NerfTransforms>, Vec<(u64, Skip)>) {
+    let mut skipped = Vec::new();
+    let mut file_intr: Option<NerfIntrinsics> = None;
+    let mut frames = Vec::new();
+    for r in records {
+        let frame = (|| {
+            let name = image_of(r)?;
+            let intr = NerfIntrinsics::from(r.intrinsics.ok_or(Skip::NoIntrinsics)?);
+            if !finite(&[intr.fl_x, intr.cx, intr.cy]) || intr.fl_x <= 0.0 {
+                return Err(Skip::NoIntrinsics);
+            }
+            let p = &r.position;
+            let m = camera_to_world_gl(&r.attitude, DVec3::new(p.east_m, p.north_m, p.up_m));
+            if !m.is_finite() {
+                let a = &r.attitude;
+                let att_ok = finite(&[a.roll_deg, a.pitch_deg, a.yaw_deg, a.camera_pitch_deg]);
+                return Err(if att_ok {
+                    Skip::NoPosition
+                } else {
+                    Skip::NoAttitude
+                });
+            }
+            let file_intr = *file_intr.get_or_insert(intr);
+            Ok(NerfFrame {
+                file_path: name.to_owned(),
+                transform_matrix: rows(&m),
+                intrinsics: (intr != file_intr).then_some(intr),
+            })
+        })();
+        match frame {
+            Ok(f) => frames.push(f),
+            Err(s) => skipped.push((r.seq, s)),
+        }
+    }
+    let t = file_intr.map(|intrinsics| NerfTransforms {
+        camera_model: "OPENCV".into(),
+        intrinsics,
+        k1: 0.0,
+        k2: 0.0,
+        p1: 0.0,
+        p2: 0.0,
+        frames,
+    });
+    (t, skipped)
+}
+
+/// What [`write_exports`] wrote.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct ExportSummary {
+    pub geo_lines: usize,
+    /// `None` when no record could go into `transforms.json` (then it is not written).
+    pub transform_frames: Option<usize>,
+    pub geo_skipped: Vec<(u64, Skip)>,
+    pub transforms_skipped: Vec<(u64, Skip)>,
+}
+
+/// Writes `geo.txt` and (when any frame qualifies) `transforms.json` atomically.
+pub fn write_exports<S: CaptureStore + ?Sized>(
+    store: &mut S,
+    records: &[CaptureRecord],
+) -> Result<ExportSummary, StoreError> {
+    let (geo, geo_skipped) = geo_txt(records);
+    store.write_export(GEO_TXT, geo.as_bytes())?;
+    let (t, transforms_skipped) = transforms(records);
+    let transform_frames = match t {
+        Some(t) => {
+            let mut json =
+                serde_json::to_string_pretty(&t).expect("finite numbers and strings serialise");
+            json.push('\n');
+            store.write_export(TRANSFORMS_JSON, json.as_bytes())?;
+            Some(t.frames.len())
+        }
+        None => None,
+    };
+    Ok(ExportSummary {
+        geo_lines: geo.lines().count() - 1,
+        transform_frames,
+        geo_skipped,
+        transforms_skipped,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn att(roll: f64, pitch: f64, yaw: f64, cam: f64) -> Attitude {
+        Attitude {
+            roll_deg: roll,
+            pitch_deg: pitch,
+            yaw_deg: yaw,
+            camera_pitch_deg: cam,
+        }
+    }
+
+    fn assert_mat3(got: DMat3, want: [[f64; 3]; 3]) {
+        let t = got.transpose();
+        let got_rows = [
+            t.x_axis.to_array(),
+            t.y_axis.to_array(),
+            t.z_axis.to_array(),
+        ];
+        for (g, w) in got_rows.iter().zip(&want) {
+            for (a, b) in g.iter().zip(w) {
+                assert!((a - b).abs() < 1e-12, "got {got_rows:?}, want {want:?}");
+            }
+        }
+    }
+
+    fn rot(m: &DMat4) -> DMat3 {
+        DMat3::from_mat4(*m)
+    }
+
+    #[test]
+    fn nadir_at_yaw_0_looks_down_with_image_right_to_north() {
+        // Vehicle level, heading north, camera at nadir. OpenCV camera = FRD body:
+        // CV x = forward = north, CV y = right = east, CV z = down.
+        // GL x = CV x = north = ENU (0,1,0); GL y = −CV y = west = (−1,0,0);
+        // GL z = −CV z = up = (0,0,1). Columns → rows:
+        // [[0, −1, 0], [1, 0, 0], [0, 0, 1]].
+        let m = camera_to_world_gl(&att(0.0, 0.0, 0.0, 0.0), DVec3::new(3.0, 4.0, 40.0));
+        assert_mat3(
+            rot(&m),
+            [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]],
+        );
+        // The camera looks along its −z: world down.
+        let look = rot(&m) * DVec3::NEG_Z;
+        assert!((look - DVec3::new(0.0, 0.0, -1.0)).length() < 1e-12);
+        assert_eq!(rows(&m)[0][3], 3.0);
+        assert_eq!(rows(&m)[1][3], 4.0);
+        assert_eq!(rows(&m)[2][3], 40.0);
+        assert_eq!(rows(&m)[3], [0.0, 0.0, 0.0, 1.0]);
+    }
+
+    #[test]
+    fn nadir_at_yaw_90_is_the_identity_rotation() {
+        // Heading east: forward = east, right = south. GL x = east = (1,0,0);
+        // GL y = −right = north = (0,1,0); GL z = up = (0,0,1): the identity.
+        let m = camera_to_world_gl(&att(0.0, 0.0, 90.0, 0.0), DVec3::ZERO);
+        assert_mat3(rot(&m), [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]);
+    }
+
+    #[test]
+    fn camera_pitch_30_tilts_the_view_forward() {
+        // Heading north, camera pitched 30° forward. In FRD: optical axis CV z =
+        // (sin30, 0, cos30) = (½, 0, √3/2); CV x = (cos30, 0, −sin30) = (√3/2, 0, −½);
+        // CV y = (0,1,0). NED → ENU (e, n, u) = (y, x, −z):
+        // GL x = CV x → (0, √3/2, ½); GL y = −CV y → (−1, 0, 0);
+        // GL z = −CV z = (−½, 0, −√3/2) in FRD → (0, −½, √3/2).
+        let s3 = 3f64.sqrt() / 2.0;
+        let m = camera_to_world_gl(&att(0.0, 0.0, 0.0, 30.0), DVec3::ZERO);
+        assert_mat3(rot(&m), [[0.0, -1.0, 0.0], [s3, 0.0, -0.5], [0.5, 0.0, s3]]);
+        // It looks forward (north) and down, 30° off the vertical.
+        let look = rot(&m) * DVec3::NEG_Z;
+        assert!((look - DVec3::new(0.0, 0.5, -s3)).length() < 1e-12);
+    }
+
+    #[test]
+    fn rolling_right_turns_the_nadir_view_to_the_left() {
+        // Right wing down by 90° at yaw 0: Rx(90°) maps the body's down axis (0,0,1)
+        // to (0, −sin 90°, cos 90°) = (0, −1, 0) in NED, i.e. west: the belly, and
+        // the nadir camera with it, faces the left of the track.
+        let m = camera_to_world_gl(&att(90.0, 0.0, 0.0, 0.0), DVec3::ZERO);
+        let look = rot(&m) * DVec3::NEG_Z;
+        assert!(
+            (look - DVec3::new(-1.0, 0.0, 0.0)).length() < 1e-12,
+            "{look}"
+        );
+    }
+
+    #[test]
+    fn odm_angles_for_a_nadir_camera_are_yaw_minus_90() {
+        // At yaw 0 the image's top (−CV y) points west: ODM's "forward" is west.
+        let (y, p, r) = odm_ypr_deg(&att(0.0, 0.0, 0.0, 0.0));
+        assert!((y + 90.0).abs() < 1e-9 && p.abs() < 1e-9 && r.abs() < 1e-9);
+        let (y, ..) = odm_ypr_deg(&att(0.0, 0.0, 135.0, 0.0));
+        assert!((y - 45.0).abs() < 1e-9, "{y}");
+    }
+
+    proptest! {
+        #[test]
+        fn transforms_are_rigid(
+            roll in -60.0f64..60.0, pitch in -60.0f64..60.0, yaw in -180.0f64..180.0,
+            cam in -10.0f64..90.0,
+            e in -1e3f64..1e3, n in -1e3f64..1e3, u in -10.0f64..200.0,
+        ) {
+            let m = camera_to_world_gl(&att(roll, pitch, yaw, cam), DVec3::new(e, n, u));
+            let r = rot(&m);
+            let rtr = r.transpose() * r;
+            prop_assert!(rtr.abs_diff_eq(DMat3::IDENTITY, 1e-12), "{rtr}");
+            prop_assert!((r.determinant() - 1.0).abs() < 1e-12);
+            prop_assert_eq!(m.w_axis, DVec4::new(e, n, u, 1.0));
+        }
+
+        #[test]
+        fn vehicle_pitch_adds_to_camera_pitch(pitch in -80.0f64..80.0, yaw in -180.0f64..180.0) {
+            // Nose up by θ turns the belly forward by θ (Ry(θ)·(0,0,1) = (sin θ, 0, cos θ)),
+            // as a forward camera pitch does: a camera pitched by −θ looks straight down.
+            let m = camera_to_world_gl(&att(0.0, pitch, yaw, -pitch), DVec3::ZERO);
+            let look = rot(&m) * DVec3::NEG_Z;
+            prop_assert!((look - DVec3::NEG_Z).length() < 1e-12, "{}", look);
+        }
+
+        #[test]
+        fn odm_angles_rebuild_the_camera_rotation(
+            roll in -60.0f64..60.0, pitch in -60.0f64..60.0, yaw in -180.0f64..180.0,
+            cam in 0.0f64..60.0,
+        ) {
+            let a = att(roll, pitch, yaw, cam);
+            let (y, p, r) = odm_ypr_deg(&a);
+            // ODM's cnb · cbb, as compute_opk builds it.
+            let odm = body_to_ned(r.to_radians(), p.to_radians(), y.to_radians()) * ODM_CAMERA_TO_BODY;
+            prop_assert!(odm.abs_diff_eq(camera_gl_to_ned(&a), 1e-9));
+        }
+    }
+}

@@ -1,0 +1,24 @@
+//! The capture log of one flight: images, `manifest.jsonl` and the exports
+//! (`geo.txt`, `transforms.json`, EXIF GPS, `telemetry.tlog`). Records and encoders
+//! are pure; [`store`] is the only part that touches files. Schema and guarantees:
+//! docs/capture-log.md.
+
+pub mod exif;
+pub mod export;
+pub mod record;
+pub mod store;
+pub mod tlog;
+
+pub use exif::{
+    encode_capture, encode_jpeg, encode_png, exif_app1, parse_exif_gps, ExifGps, ImageError,
+};
+pub use export::{camera_to_world_gl, geo_txt, transforms, write_exports, ExportSummary};
+pub use record::{
+    image_file_name, Attitude, CameraIntrinsics, CaptureMode, CaptureRecord, ImageFormat,
+    Occlusion, Position, Spacing,
+};
+pub use store::{
+    log_capture, parse_manifest, read_manifest, CaptureStore, DirStore, FillingStore, LogError,
+    Manifest, MemStore, StoreError,
+};
+pub use tlog::{TlogEntry, TlogWriter};

@@ -1,0 +1,361 @@
+//! The exports against their formats: `geo.txt` lines, `transforms.json` fields and
+//! matrices, EXIF GPS read back by exiftool, and `telemetry.tlog` entries.
+
+use std::fs;
+use std::process::Command;
+
+use alfd::capture::exif::{find_exif_app1, parse_exif_gps};
+use alfd::capture::export::{Skip, GEO_TXT, TRANSFORMS_JSON};
+use alfd::capture::tlog;
+use alfd::capture::{
+    encode_capture, image_file_name, log_capture, read_manifest, write_exports, Attitude,
+    CameraIntrinsics, CaptureMode, CaptureRecord, CaptureStore, DirStore, ExifGps, ImageFormat,
+    MemStore, Position, Spacing, TlogWriter,
+};
+use serde_json::Value;
+
+const W: u32 = 32;
+const H: u32 = 24;
+
+fn record(seq: u64, lat: f64, lon: f64, alt: f64, yaw: f64, cam_pitch: f64) -> CaptureRecord {
+    CaptureRecord {
+        seq,
+        image: Some(image_file_name(seq, ImageFormat::Jpeg { quality: 90 })),
+        time_boot_us: 90_000_000 + seq,
+        time_unix_us: Some(1_780_123_456_000_000 + seq * 500_000),
+        mono_ns: seq * 500_000_000,
+        position: Position {
+            lat_deg: lat,
+            lon_deg: lon,
+            alt_m: alt,
+            rel_alt_m: 40.0,
+            east_m: 10.0 * seq as f64,
+            north_m: -5.0,
+            up_m: 40.0,
+        },
+        attitude: Attitude {
+            roll_deg: 0.0,
+            pitch_deg: 0.0,
+            yaw_deg: yaw,
+            camera_pitch_deg: cam_pitch,
+        },
+        spacing: Spacing {
+            permissible_m: None,
+            chosen_m: 10.0,
+            active_bound: "config_max".into(),
+        },
+        distance_since_last_m: None,
+        occlusion: None,
+        terms: vec![],
+        model: "fixed".into(),
+        capture_mode: CaptureMode::Frame,
+        undersampled: false,
+        rate_limited: false,
+        fallback: true,
+        pose_age_ms: 3.0,
+        intrinsics: Some(CameraIntrinsics {
+            width: W,
+            height: H,
+            focal_px: 27.7,
+            cx_px: 16.0,
+            cy_px: 12.0,
+        }),
+    }
+}
+
+fn flight() -> Vec<CaptureRecord> {
+    let mut external = record(3, 47.1, 8.1, 500.0, 0.0, 0.0);
+    external.image = None;
+    external.capture_mode = CaptureMode::CameraCommand;
+    external.intrinsics = None;
+    vec![
+        record(1, 47.397_742_1, 8.545_594_3, 528.25, 0.0, 0.0),
+        record(2, -33.856_784_5, 151.215_297_2, 12.5, 90.0, 30.0),
+        external,
+    ]
+}
+
+#[test]
+fn geo_txt_lists_captured_images_lon_lat_alt_and_angles() {
+    let mut store = MemStore::default();
+    let summary = write_exports(&mut store, &flight()).unwrap();
+    assert_eq!(summary.geo_lines, 2);
+    assert_eq!(summary.geo_skipped, [(3, Skip::NoImage)]);
+    let text = String::from_utf8(store.exports[GEO_TXT].clone()).unwrap();
+    let lines: Vec<&str> = text.lines().collect();
+    assert_eq!(lines[0], "EPSG:4326");
+    assert_eq!(lines.len(), 3, "{text}");
+    let fields: Vec<Vec<&str>> = lines[1..].iter().map(|l| l.split(' ').collect()).collect();
+    let num = |s: &str| s.parse::<f64>().unwrap();
+    // image_name geo_x (lon) geo_y (lat) geo_z yaw pitch roll
+    assert_eq!(fields[0][0], "IMG_000001.jpg");
+    assert_eq!(fields[0].len(), 7);
+    assert!(!lines[1].contains("-0.0000"), "{}", lines[1]);
+    assert!((num(fields[0][1]) - 8.545_594_3).abs() < 1e-9);
+    assert!((num(fields[0][2]) - 47.397_742_1).abs() < 1e-9);
+    assert!((num(fields[0][3]) - 528.25).abs() < 1e-3);
+    // Nadir at vehicle yaw 0: ODM's image top points west, yaw −90, level.
+    assert!((num(fields[0][4]) + 90.0).abs() < 1e-3, "{}", lines[1]);
+    assert!(num(fields[0][5]).abs() < 1e-3 && num(fields[0][6]).abs() < 1e-3);
+    assert_eq!(fields[1][0], "IMG_000002.jpg");
+    assert!((num(fields[1][1]) - 151.215_297_2).abs() < 1e-9);
+    assert!((num(fields[1][2]) + 33.856_784_5).abs() < 1e-9);
+    // Heading east with the camera 30° forward: ODM's forward (image top) is north,
+    // and the forward tilt is a roll of the ODM body towards the vehicle's heading:
+    // Rx(−30°) turns ODM's down axis (0,0,1) to (0, sin 30°, cos 30°), i.e. east.
+    assert!(num(fields[1][4]).abs() < 1e-3, "{}", lines[2]);
+    assert!(num(fields[1][5]).abs() < 1e-3, "{}", lines[2]);
+    assert!((num(fields[1][6]) + 30.0).abs() < 1e-3, "{}", lines[2]);
+}
+
+#[test]
+fn transforms_json_has_intrinsics_and_camera_to_world_matrices() {
+    let mut store = MemStore::default();
+    let summary = write_exports(&mut store, &flight()).unwrap();
+    assert_eq!(summary.transform_frames, Some(2));
+    let v: Value = serde_json::from_slice(&store.exports[TRANSFORMS_JSON]).unwrap();
+    assert_eq!(v["camera_model"], "OPENCV");
+    assert_eq!(v["fl_x"], 27.7);
+    assert_eq!(v["fl_y"], 27.7);
+    assert_eq!(
+        (v["cx"].as_f64(), v["cy"].as_f64()),
+        (Some(16.0), Some(12.0))
+    );
+    assert_eq!((v["w"].as_u64(), v["h"].as_u64()), (Some(32), Some(24)));
+    for k in ["k1", "k2", "p1", "p2"] {
+        assert_eq!(v[k], 0.0, "{k}");
+    }
+    let frames = v["frames"].as_array().unwrap();
+    assert_eq!(frames.len(), 2);
+    assert_eq!(frames[0]["file_path"], "IMG_000001.jpg");
+    assert!(
+        frames[0].get("fl_x").is_none(),
+        "same intrinsics: not repeated"
+    );
+    let m = |f: &Value| -> Vec<Vec<f64>> {
+        f["transform_matrix"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|r| {
+                r.as_array()
+                    .unwrap()
+                    .iter()
+                    .map(|x| x.as_f64().unwrap())
+                    .collect()
+            })
+            .collect()
+    };
+    // Frame 1: nadir, yaw 0 (derivation in src/capture/export.rs tests): GL x → north,
+    // GL y → west, GL z → up; translation = ENU position.
+    let want1 = [
+        [0.0, -1.0, 0.0, 10.0],
+        [1.0, 0.0, 0.0, -5.0],
+        [0.0, 0.0, 1.0, 40.0],
+        [0.0, 0.0, 0.0, 1.0],
+    ];
+    // Frame 2: yaw 90 (east), camera 30° forward. FRD: CV x = (√3/2, 0, −½),
+    // CV y = (0,1,0), CV z = (½, 0, √3/2). Rotated to NED by Rz(90°): (x,y,z) →
+    // (−y, x, z): CV x = (0, √3/2, −½), CV y = (−1, 0, 0), CV z = (0, ½, √3/2).
+    // ENU (y, x, −z): CV x = (√3/2, 0, ½), CV y = (0, −1, 0), CV z = (½, 0, −√3/2).
+    // GL = (CV x, −CV y, −CV z): columns (√3/2, 0, ½), (0, 1, 0), (−½, 0, √3/2).
+    let s3 = 3f64.sqrt() / 2.0;
+    let want2 = [
+        [s3, 0.0, -0.5, 20.0],
+        [0.0, 1.0, 0.0, -5.0],
+        [0.5, 0.0, s3, 40.0],
+        [0.0, 0.0, 0.0, 1.0],
+    ];
+    for (f, want) in frames.iter().zip([want1, want2]) {
+        let got = m(f);
+        for (g, w) in got.iter().zip(want) {
+            for (a, b) in g.iter().zip(w) {
+                assert!((a - b).abs() < 1e-12, "{}: {got:?}", f["file_path"]);
+            }
+        }
+    }
+}
+
+#[test]
+fn transforms_json_is_not_written_without_any_camera() {
+    let mut store = MemStore::default();
+    let s = write_exports(&mut store, &flight()[2..]).unwrap();
+    assert_eq!(s.transform_frames, None);
+    assert!(!store.exports.contains_key(TRANSFORMS_JSON));
+    assert_eq!(store.exports[GEO_TXT], b"EPSG:4326\n");
+}
+
+fn exiftool() -> Option<()> {
+    let found = Command::new("exiftool")
+        .arg("-ver")
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if found {
+        return Some(());
+    }
+    if std::env::var_os("CI").is_some() {
+        panic!("exiftool is missing in CI: scripts/setup.sh installs libimage-exiftool-perl");
+    }
+    eprintln!("SKIPPED: exiftool not installed (run scripts/setup.sh); CI runs this test");
+    None
+}
+
+#[test]
+fn exif_gps_in_logged_jpegs_reads_back_with_exiftool() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut store = DirStore::open(tmp.path()).unwrap();
+    let rgb: Vec<u8> = (0..W * H * 3).map(|i| (i % 256) as u8).collect();
+    let records = flight();
+    for r in &records[..2] {
+        let gps = ExifGps::from_record(r, "alfd", "synthetic");
+        let fmt = ImageFormat::Jpeg { quality: 80 };
+        let (jpeg, tagged) = encode_capture(&rgb, W, H, fmt, Some(&gps)).unwrap();
+        assert!(tagged);
+        // The pure parser first: it needs no tool.
+        let p = parse_exif_gps(find_exif_app1(&jpeg).unwrap()).unwrap();
+        assert!((p.lat_deg - r.position.lat_deg).abs() < 1e-9);
+        assert!((p.lon_deg - r.position.lon_deg).abs() < 1e-9);
+        assert!((p.alt_m - r.position.alt_m).abs() < 1e-3);
+        assert_eq!(p.gps_time_unix_us, r.time_unix_us);
+        log_capture(&mut store, r, Some(&jpeg)).unwrap();
+    }
+    let Some(()) = exiftool() else { return };
+    let manifest = read_manifest(&store.manifest_path()).unwrap();
+    let names: Vec<String> = manifest
+        .records
+        .iter()
+        .filter_map(|r| r.image.clone())
+        .collect();
+    let out = Command::new("exiftool")
+        .args([
+            "-n",
+            "-j",
+            "-GPSLatitude",
+            "-GPSLongitude",
+            "-GPSAltitude",
+            "-Make",
+            "-GPSDateTime",
+        ])
+        .args(names.iter().map(|n| tmp.path().join(n)))
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let tags = v.as_array().unwrap();
+    assert_eq!(tags.len(), 2);
+    for (t, r) in tags.iter().zip(&manifest.records) {
+        let f = |k: &str| {
+            t[k].as_f64()
+                .unwrap_or_else(|| panic!("{k} missing in {t}"))
+        };
+        assert!((f("GPSLatitude") - r.position.lat_deg).abs() < 1e-6, "{t}");
+        assert!((f("GPSLongitude") - r.position.lon_deg).abs() < 1e-6, "{t}");
+        assert!((f("GPSAltitude") - r.position.alt_m).abs() < 0.01, "{t}");
+        assert_eq!(t["Make"], "alfd");
+    }
+    // 1780123456.5 s = 2026-05-30 06:44:16.5 UTC (capture 1).
+    assert_eq!(tags[0]["GPSDateTime"], "2026:05:30 06:44:16.5Z");
+    // Exif 2.3's required tags are all there: exiftool finds nothing to complain about.
+    let out = Command::new("exiftool")
+        .args(["-validate", "-warning", "-a", "-j"])
+        .arg(tmp.path().join(&names[0]))
+        .output()
+        .unwrap();
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v[0]["Validate"], "OK", "{}", v[0]);
+}
+
+/// A MAVLink frame of `msg` as a ground station would receive it.
+fn frame(
+    version: mavlink::MavlinkVersion,
+    seq: u8,
+    msg: &mavlink::dialects::common::MavMessage,
+) -> Vec<u8> {
+    let header = mavlink::MavHeader {
+        system_id: 1,
+        component_id: 1,
+        sequence: seq,
+    };
+    let mut out = Vec::new();
+    mavlink::write_versioned_msg(&mut out, version, header, msg).unwrap();
+    out
+}
+
+#[test]
+fn telemetry_tlog_holds_timestamped_frames_as_received() {
+    use mavlink::dialects::common::{MavMessage, ATTITUDE_DATA, HEARTBEAT_DATA};
+    use mavlink::MavlinkVersion::{V1, V2};
+    let msgs = [
+        (V2, MavMessage::HEARTBEAT(HEARTBEAT_DATA::default())),
+        (
+            V2,
+            MavMessage::ATTITUDE(ATTITUDE_DATA {
+                time_boot_ms: 123_456,
+                roll: 0.1,
+                pitch: -0.2,
+                yaw: 1.5,
+                ..ATTITUDE_DATA::default()
+            }),
+        ),
+        (V1, MavMessage::HEARTBEAT(HEARTBEAT_DATA::default())),
+        (V2, MavMessage::HEARTBEAT(HEARTBEAT_DATA::default())),
+    ];
+    let frames: Vec<Vec<u8>> = msgs
+        .iter()
+        .enumerate()
+        .map(|(i, (v, m))| frame(*v, i as u8, m))
+        .collect();
+    let t0 = 1_780_000_000_000_000u64;
+    let times = [t0, t0 + 100_000, t0 + 1_200_000, t0 + 1_300_000];
+
+    let tmp = tempfile::tempdir().unwrap();
+    let mut store = DirStore::open(tmp.path()).unwrap();
+    {
+        let mut w = TlogWriter::new(&mut store, 1_000_000);
+        for (t, f) in times.iter().zip(&frames) {
+            w.write(*t, f).unwrap();
+        }
+        assert!(
+            w.write(t0, &frames[0][..5]).is_err(),
+            "a partial frame is refused"
+        );
+        w.sync().unwrap();
+    }
+    let bytes = fs::read(tmp.path().join("telemetry.tlog")).unwrap();
+    assert_eq!(
+        bytes.len(),
+        frames.iter().map(|f| 8 + f.len()).sum::<usize>()
+    );
+    assert_eq!(&bytes[..8], &t0.to_be_bytes());
+    let (entries, err) = tlog::parse(&bytes);
+    assert_eq!(err, None);
+    assert_eq!(entries.len(), 4);
+    for ((e, t), (f, (v, m))) in entries.iter().zip(times).zip(frames.iter().zip(&msgs)) {
+        assert_eq!(e.unix_us, t);
+        assert_eq!(e.frame, &f[..]);
+        let (_, back) = mavlink::MavlinkReader::new(e.frame)
+            .read_message::<MavMessage>(*v)
+            .unwrap();
+        assert_eq!(&back, m);
+    }
+
+    // Syncs come from the entries' own clock: one at t0 + 1.2 s, one at the end.
+    let mut mem = MemStore::default();
+    let mut w = TlogWriter::new(&mut mem, 1_000_000);
+    for (t, f) in times.iter().zip(&frames) {
+        w.write(*t, f).unwrap();
+    }
+    assert_eq!(w.store().telemetry_syncs, 1);
+    assert_eq!(
+        w.store().telemetry_synced,
+        8 * 3 + frames[..3].iter().map(Vec::len).sum::<usize>()
+    );
+    w.sync().unwrap();
+    assert_eq!(mem.telemetry_syncs, 2);
+    assert_eq!(mem.telemetry_synced, mem.telemetry.len());
+    assert!(mem.free_bytes().is_none());
+}
