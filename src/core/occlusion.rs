@@ -69,7 +69,8 @@ pub fn scan_line(
     stats: &mut BoundaryStats,
 ) {
     let step = step.max(1);
-    let weigh = |diff: f64, ja: usize, jb: usize| weight.map_or(diff, |g| diff * 0.5 * (g[ja] + g[jb]));
+    let weigh =
+        |diff: f64, ja: usize, jb: usize| weight.map_or(diff, |g| diff * 0.5 * (g[ja] + g[jb]));
     let tau_rel = p.tau_rel * step as f64;
     if scale.is_none() && keep.is_none() && line.len() >= 2 {
         // Most lines have no masked sample: compare neighbours directly.

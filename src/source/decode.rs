@@ -65,14 +65,36 @@ fn ycbcr_to_rgb(y: u8, u: u8, v: u8) -> [u8; 3] {
 /// frame; the decoder then uses the standard tables (JPEG Annex K), as the UVC
 /// MJPEG payload specification says.
 pub fn mjpeg_to_rgb(buf: &[u8]) -> Result<ColorImage, DecodeError> {
+    // The decoder fills in the standard tables only for frames that say they
+    // are AVI1 MJPEG; many UVC cameras omit that marker too, so add it.
+    let patched;
+    let buf = if buf.len() >= 2 && buf[..2] == [0xFF, 0xD8] && !has_huffman_tables(buf) {
+        patched = [
+            &buf[..2],
+            &[0xFF, 0xE0, 0x00, 0x07, b'A', b'V', b'I', b'1', 0x00][..],
+            &buf[2..],
+        ]
+        .concat();
+        &patched[..]
+    } else {
+        buf
+    };
     let mut dec = jpeg_decoder::Decoder::new(buf);
-    let pixels = dec.decode().map_err(|e| DecodeError::Mjpeg(e.to_string()))?;
-    let info = dec.info().ok_or_else(|| DecodeError::Mjpeg("no frame header".into()))?;
+    let pixels = dec
+        .decode()
+        .map_err(|e| DecodeError::Mjpeg(e.to_string()))?;
+    let info = dec
+        .info()
+        .ok_or_else(|| DecodeError::Mjpeg("no frame header".into()))?;
     let (width, height) = (info.width as usize, info.height as usize);
     let rgb = match info.pixel_format {
         jpeg_decoder::PixelFormat::RGB24 => pixels,
         jpeg_decoder::PixelFormat::L8 => pixels.iter().flat_map(|&l| [l, l, l]).collect(),
-        other => return Err(DecodeError::Mjpeg(format!("unsupported pixel format {other:?}"))),
+        other => {
+            return Err(DecodeError::Mjpeg(format!(
+                "unsupported pixel format {other:?}"
+            )))
+        }
     };
     if rgb.len() != width * height * 3 {
         return Err(DecodeError::Mjpeg(format!(
@@ -83,15 +105,35 @@ pub fn mjpeg_to_rgb(buf: &[u8]) -> Result<ColorImage, DecodeError> {
     Ok(ColorImage { width, height, rgb })
 }
 
+/// Whether a DHT segment comes before the first scan (walking the marker
+/// segments from SOI; a malformed walk answers true and leaves it to the decoder).
+fn has_huffman_tables(jpeg: &[u8]) -> bool {
+    let mut i = 2;
+    while i + 4 <= jpeg.len() && jpeg[i] == 0xFF {
+        match jpeg[i + 1] {
+            0xC4 => return true,
+            0xDA => return false,
+            _ => i += 2 + u16::from_be_bytes([jpeg[i + 2], jpeg[i + 3]]) as usize,
+        }
+    }
+    true
+}
+
 /// A Z16 buffer (little-endian u16, `scale_m` metres per unit). Padding beyond
 /// the image (`bytesused` larger than `width·height·2`) is ignored.
-pub fn z16_to_depth(width: usize, height: usize, buf: &[u8], scale_m: f64) -> Result<DepthImage, DecodeError> {
+pub fn z16_to_depth(
+    width: usize,
+    height: usize,
+    buf: &[u8],
+    scale_m: f64,
+) -> Result<DepthImage, DecodeError> {
     let n = width.checked_mul(height).and_then(|p| p.checked_mul(2));
     let bytes = match n {
         Some(n) if buf.len() >= n => &buf[..n],
         _ => buf,
     };
-    decode_z16(bytes, width, height, scale_m).map_err(|e: DepthFileError| DecodeError::Z16(e.to_string()))
+    decode_z16(bytes, width, height, scale_m)
+        .map_err(|e: DepthFileError| DecodeError::Z16(e.to_string()))
 }
 
 #[cfg(test)]
@@ -125,7 +167,64 @@ mod tests {
         buf[0..2].copy_from_slice(&1234u16.to_le_bytes());
         let d = z16_to_depth(4, 2, &buf, 0.001).unwrap();
         assert_eq!(d.width(), 4);
-        assert!(matches!(z16_to_depth(4, 2, &buf[..10], 0.001), Err(DecodeError::Z16(_))));
+        assert!(matches!(
+            z16_to_depth(4, 2, &buf[..10], 0.001),
+            Err(DecodeError::Z16(_))
+        ));
+    }
+
+    /// Removes every DHT (define Huffman table) segment, as UVC cameras send MJPEG.
+    fn strip_huffman_tables(jpeg: &[u8]) -> Vec<u8> {
+        let mut out = jpeg[..2].to_vec();
+        let mut i = 2;
+        while i + 4 <= jpeg.len() && jpeg[i] == 0xFF {
+            let marker = jpeg[i + 1];
+            if marker == 0xDA {
+                break; // start of scan: entropy-coded data follows
+            }
+            let len = u16::from_be_bytes([jpeg[i + 2], jpeg[i + 3]]) as usize;
+            if marker != 0xC4 {
+                out.extend_from_slice(&jpeg[i..i + 2 + len]);
+            }
+            i += 2 + len;
+        }
+        out.extend_from_slice(&jpeg[i..]);
+        out
+    }
+
+    #[test]
+    fn mjpeg_without_huffman_tables_decodes_like_the_full_jpeg() {
+        let (w, h) = (64u16, 48u16);
+        let rgb: Vec<u8> = (0..w as usize * h as usize)
+            .flat_map(|k| {
+                let (x, y) = (k % w as usize, k / w as usize);
+                [(x * 4) as u8, (y * 5) as u8, ((x + y) * 2) as u8]
+            })
+            .collect();
+        let mut full = Vec::new();
+        jpeg_encoder::Encoder::new(&mut full, 90)
+            .encode(&rgb, w, h, jpeg_encoder::ColorType::Rgb)
+            .unwrap();
+        let stripped = strip_huffman_tables(&full);
+        assert!(
+            stripped.len() < full.len(),
+            "the encoder wrote no DHT to strip"
+        );
+        assert!(!stripped.windows(2).any(|m| m == [0xFF, 0xC4]));
+        let a = mjpeg_to_rgb(&full).unwrap();
+        let b = mjpeg_to_rgb(&stripped).unwrap();
+        assert_eq!((b.width, b.height), (64, 48));
+        // The standard tables are the ones the encoder used: identical pixels.
+        assert_eq!(a.rgb, b.rgb);
+        // And close to the source image (quality 90 on a smooth ramp).
+        let mse: f64 = a
+            .rgb
+            .iter()
+            .zip(&rgb)
+            .map(|(&p, &q)| (p as f64 - q as f64).powi(2))
+            .sum::<f64>()
+            / rgb.len() as f64;
+        assert!(mse < 10.0, "mse {mse}");
     }
 
     #[test]

@@ -54,8 +54,13 @@ impl Recording {
         let meta_path = dir.join("meta.json");
         let text = fs::read_to_string(&meta_path).map_err(|e| fatal(&meta_path, e))?;
         let meta: RecordingMeta = serde_json::from_str(&text).map_err(|e| fatal(&meta_path, e))?;
-        let intrinsics = Intrinsics::from_focal_px(meta.width, meta.height, meta.focal_px, Some((meta.cx_px, meta.cy_px)))
-            .map_err(|e| fatal(&meta_path, e))?;
+        let intrinsics = Intrinsics::from_focal_px(
+            meta.width,
+            meta.height,
+            meta.focal_px,
+            Some((meta.cx_px, meta.cy_px)),
+        )
+        .map_err(|e| fatal(&meta_path, e))?;
         if !(meta.depth_scale_m.is_finite() && meta.depth_scale_m > 0.0) {
             return Err(fatal(&meta_path, "depth_scale_m must be positive"));
         }
@@ -67,15 +72,27 @@ impl Recording {
             if line.trim().is_empty() {
                 continue;
             }
-            let entry: FrameEntry =
-                serde_json::from_str(&line).map_err(|e| fatal(&index, format!("line {}: {e}", n + 1)))?;
+            let entry: FrameEntry = serde_json::from_str(&line)
+                .map_err(|e| fatal(&index, format!("line {}: {e}", n + 1)))?;
             for name in [&entry.depth, &entry.color].into_iter().flatten() {
                 if Path::new(name).components().count() != 1 || name.starts_with('.') {
-                    return Err(fatal(&index, format!("line {}: file name {name:?} must not leave the directory", n + 1)));
+                    return Err(fatal(
+                        &index,
+                        format!(
+                            "line {}: file name {name:?} must not leave the directory",
+                            n + 1
+                        ),
+                    ));
                 }
             }
-            if frames.last().is_some_and(|last| entry.mono_ns < last.mono_ns) {
-                return Err(fatal(&index, format!("line {}: mono_ns goes backwards", n + 1)));
+            if frames
+                .last()
+                .is_some_and(|last| entry.mono_ns < last.mono_ns)
+            {
+                return Err(fatal(
+                    &index,
+                    format!("line {}: mono_ns goes backwards", n + 1),
+                ));
             }
             frames.push(entry);
         }
@@ -112,12 +129,18 @@ impl DepthSource for Recording {
             self.next_depth += 1;
             let Some(name) = &entry.depth else { continue };
             let path = self.dir.join(name);
-            let bytes = fs::read(&path).map_err(|e| SourceError::Lost(format!("{}: {e}", path.display())))?;
-            let image = crate::depthio::decode_z16(&bytes, self.meta.width, self.meta.height, self.meta.depth_scale_m)
-                .map_err(|e| SourceError::BadFrame {
-                    seq: entry.seq,
-                    reason: format!("{}: {e}", path.display()),
-                })?;
+            let bytes = fs::read(&path)
+                .map_err(|e| SourceError::Lost(format!("{}: {e}", path.display())))?;
+            let image = crate::depthio::decode_z16(
+                &bytes,
+                self.meta.width,
+                self.meta.height,
+                self.meta.depth_scale_m,
+            )
+            .map_err(|e| SourceError::BadFrame {
+                seq: entry.seq,
+                reason: format!("{}: {e}", path.display()),
+            })?;
             return Ok(Some(Stamped {
                 mono_ns: entry.mono_ns,
                 seq: entry.seq,
@@ -134,7 +157,10 @@ impl FrameSource for Recording {
             self.next_color += 1;
             let Some(name) = &entry.color else { continue };
             let path = self.dir.join(name);
-            let image = read_rgb_png(&path).map_err(|reason| SourceError::BadFrame { seq: entry.seq, reason })?;
+            let image = read_rgb_png(&path).map_err(|reason| SourceError::BadFrame {
+                seq: entry.seq,
+                reason,
+            })?;
             return Ok(Some(Stamped {
                 mono_ns: entry.mono_ns,
                 seq: entry.seq,
@@ -149,20 +175,36 @@ fn read_rgb_png(path: &Path) -> Result<ColorImage, String> {
     let file = fs::File::open(path).map_err(|e| format!("{}: {e}", path.display()))?;
     let mut dec = png::Decoder::new(BufReader::new(file));
     dec.set_transformations(png::Transformations::EXPAND | png::Transformations::STRIP_16);
-    let mut reader = dec.read_info().map_err(|e| format!("{}: {e}", path.display()))?;
+    let mut reader = dec
+        .read_info()
+        .map_err(|e| format!("{}: {e}", path.display()))?;
     let size = reader
         .output_buffer_size()
         .ok_or_else(|| format!("{}: image too large", path.display()))?;
     let mut buf = vec![0; size];
-    let info = reader.next_frame(&mut buf).map_err(|e| format!("{}: {e}", path.display()))?;
+    let info = reader
+        .next_frame(&mut buf)
+        .map_err(|e| format!("{}: {e}", path.display()))?;
     let (w, h) = (info.width as usize, info.height as usize);
     let rgb = match info.color_type {
         png::ColorType::Rgb => buf[..w * h * 3].to_vec(),
-        png::ColorType::Rgba => buf[..w * h * 4].chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]).collect(),
+        png::ColorType::Rgba => buf[..w * h * 4]
+            .chunks_exact(4)
+            .flat_map(|p| [p[0], p[1], p[2]])
+            .collect(),
         png::ColorType::Grayscale => buf[..w * h].iter().flat_map(|&l| [l, l, l]).collect(),
-        other => return Err(format!("{}: unsupported PNG colour type {other:?}", path.display())),
+        other => {
+            return Err(format!(
+                "{}: unsupported PNG colour type {other:?}",
+                path.display()
+            ))
+        }
     };
-    Ok(ColorImage { width: w, height: h, rgb })
+    Ok(ColorImage {
+        width: w,
+        height: h,
+        rgb,
+    })
 }
 
 /// Writes a recording: frames are appended as they come.
@@ -176,7 +218,10 @@ impl Recorder {
     pub fn create(dir: &Path, meta: RecordingMeta) -> std::io::Result<Recorder> {
         fs::create_dir_all(dir)?;
         fs::write(dir.join("meta.json"), serde_json::to_string_pretty(&meta)?)?;
-        let index = fs::OpenOptions::new().create(true).append(true).open(dir.join("frames.jsonl"))?;
+        let index = fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(dir.join("frames.jsonl"))?;
         Ok(Recorder {
             dir: dir.to_path_buf(),
             index,
@@ -185,7 +230,13 @@ impl Recorder {
     }
 
     /// Appends one frame; `depth` must be Z16 of the recording's size and scale.
-    pub fn push(&mut self, seq: u64, mono_ns: u64, depth: Option<&DepthImage>, color: Option<&ColorImage>) -> std::io::Result<()> {
+    pub fn push(
+        &mut self,
+        seq: u64,
+        mono_ns: u64,
+        depth: Option<&DepthImage>,
+        color: Option<&ColorImage>,
+    ) -> std::io::Result<()> {
         let mut entry = FrameEntry {
             seq,
             mono_ns,
@@ -196,8 +247,13 @@ impl Recorder {
             let DepthData::Z16 { data, scale_m } = d.data() else {
                 return Err(std::io::Error::other("recordings hold Z16 depth"));
             };
-            if d.width() != self.meta.width || d.height() != self.meta.height || *scale_m != self.meta.depth_scale_m {
-                return Err(std::io::Error::other("depth frame does not match the recording's size or scale"));
+            if d.width() != self.meta.width
+                || d.height() != self.meta.height
+                || *scale_m != self.meta.depth_scale_m
+            {
+                return Err(std::io::Error::other(
+                    "depth frame does not match the recording's size or scale",
+                ));
             }
             let name = format!("depth_{seq:06}.z16");
             fs::write(self.dir.join(&name), crate::depthio::encode_z16(data))?;
@@ -206,7 +262,11 @@ impl Recorder {
         if let Some(c) = color {
             let name = format!("color_{seq:06}.png");
             let file = fs::File::create(self.dir.join(&name))?;
-            let mut enc = png::Encoder::new(std::io::BufWriter::new(file), c.width as u32, c.height as u32);
+            let mut enc = png::Encoder::new(
+                std::io::BufWriter::new(file),
+                c.width as u32,
+                c.height as u32,
+            );
             enc.set_color(png::ColorType::Rgb);
             enc.set_depth(png::BitDepth::Eight);
             enc.write_header()
@@ -238,7 +298,17 @@ mod tests {
     fn a_recording_replays_what_was_recorded_in_order() {
         let dir = tempfile::tempdir().unwrap();
         let mut rec = Recorder::create(dir.path(), meta()).unwrap();
-        let depth = |v: u16| DepthImage::new(4, 2, DepthData::Z16 { data: vec![v; 8], scale_m: 0.001 }).unwrap();
+        let depth = |v: u16| {
+            DepthImage::new(
+                4,
+                2,
+                DepthData::Z16 {
+                    data: vec![v; 8],
+                    scale_m: 0.001,
+                },
+            )
+            .unwrap()
+        };
         let color = ColorImage {
             width: 2,
             height: 1,
@@ -255,7 +325,9 @@ mod tests {
         let d3 = r.next_depth().unwrap().unwrap();
         assert_eq!((d3.seq, d3.mono_ns, d3.data.clone()), (3, 300, depth(2000)));
         assert!(r.next_depth().unwrap().is_none());
-        let c: Vec<u64> = std::iter::from_fn(|| r.next_frame().unwrap()).map(|f| f.seq).collect();
+        let c: Vec<u64> = std::iter::from_fn(|| r.next_frame().unwrap())
+            .map(|f| f.seq)
+            .collect();
         assert_eq!(c, vec![1, 2]);
         assert_eq!(r.intrinsics().focal_px(), 3.0);
     }
@@ -263,8 +335,14 @@ mod tests {
     #[test]
     fn bad_recordings_are_named() {
         let dir = tempfile::tempdir().unwrap();
-        assert!(matches!(Recording::open(dir.path()), Err(SourceError::Fatal(m)) if m.contains("meta.json")));
-        fs::write(dir.path().join("meta.json"), serde_json::to_string(&meta()).unwrap()).unwrap();
+        assert!(
+            matches!(Recording::open(dir.path()), Err(SourceError::Fatal(m)) if m.contains("meta.json"))
+        );
+        fs::write(
+            dir.path().join("meta.json"),
+            serde_json::to_string(&meta()).unwrap(),
+        )
+        .unwrap();
         fs::write(
             dir.path().join("frames.jsonl"),
             "{\"seq\":1,\"mono_ns\":5,\"depth\":\"../etc/passwd\",\"color\":null}\n",
@@ -277,7 +355,10 @@ mod tests {
             "{\"seq\":1,\"mono_ns\":5,\"depth\":null,\"color\":null}\n{\"seq\":2,\"mono_ns\":4,\"depth\":null,\"color\":null}\n",
         )
         .unwrap();
-        assert!(Recording::open(dir.path()).unwrap_err().to_string().contains("backwards"));
+        assert!(Recording::open(dir.path())
+            .unwrap_err()
+            .to_string()
+            .contains("backwards"));
         // A missing depth file at replay is a lost source, not a panic.
         fs::write(
             dir.path().join("frames.jsonl"),

@@ -34,15 +34,21 @@ impl DeviceSelector {
         if let Some(p) = &self.path {
             return *p == d.path;
         }
-        self.serial.as_ref().is_none_or(|s| d.serial.as_ref() == Some(s))
+        self.serial
+            .as_ref()
+            .is_none_or(|s| d.serial.as_ref() == Some(s))
             && self.bus.as_ref().is_none_or(|b| *b == d.bus)
-            && self.card.as_ref().is_none_or(|c| d.card.contains(c.as_str()))
+            && self
+                .card
+                .as_ref()
+                .is_none_or(|c| d.card.contains(c.as_str()))
             && d.formats.iter().any(|f| f == fourcc)
     }
 
     /// The first device (by path) that matches and captures `fourcc`.
     pub fn pick<'a>(&self, devices: &'a [DeviceInfo], fourcc: &str) -> Option<&'a DeviceInfo> {
-        let mut found: Vec<&DeviceInfo> = devices.iter().filter(|d| self.matches(d, fourcc)).collect();
+        let mut found: Vec<&DeviceInfo> =
+            devices.iter().filter(|d| self.matches(d, fourcc)).collect();
         found.sort_by(|a, b| a.path.cmp(&b.path));
         found.first().copied()
     }
@@ -68,12 +74,27 @@ mod tests {
             serial: Some("123456".into()),
             ..DeviceSelector::default()
         };
-        let before = [dev("/dev/video0", "123456", "usb-1", &["Z16 "]), dev("/dev/video2", "123456", "usb-1", &["YUYV"])];
-        assert_eq!(sel.pick(&before, "Z16 ").unwrap().path, PathBuf::from("/dev/video0"));
-        assert_eq!(sel.pick(&before, "YUYV").unwrap().path, PathBuf::from("/dev/video2"));
+        let before = [
+            dev("/dev/video0", "123456", "usb-1", &["Z16 "]),
+            dev("/dev/video2", "123456", "usb-1", &["YUYV"]),
+        ];
+        assert_eq!(
+            sel.pick(&before, "Z16 ").unwrap().path,
+            PathBuf::from("/dev/video0")
+        );
+        assert_eq!(
+            sel.pick(&before, "YUYV").unwrap().path,
+            PathBuf::from("/dev/video2")
+        );
         // After a USB reset the same camera comes back under new nodes.
-        let after = [dev("/dev/video4", "123456", "usb-1", &["Z16 "]), dev("/dev/video6", "999", "usb-2", &["Z16 "])];
-        assert_eq!(sel.pick(&after, "Z16 ").unwrap().path, PathBuf::from("/dev/video4"));
+        let after = [
+            dev("/dev/video4", "123456", "usb-1", &["Z16 "]),
+            dev("/dev/video6", "999", "usb-2", &["Z16 "]),
+        ];
+        assert_eq!(
+            sel.pick(&after, "Z16 ").unwrap().path,
+            PathBuf::from("/dev/video4")
+        );
         // Another camera's serial never matches.
         let other = [dev("/dev/video0", "999", "usb-1", &["Z16 "])];
         assert!(sel.pick(&other, "Z16 ").is_none());

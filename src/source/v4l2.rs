@@ -23,11 +23,17 @@ pub fn scan() -> Vec<DeviceInfo> {
     for e in entries.flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
         let path = PathBuf::from("/dev").join(&name);
-        let Ok(dev) = Device::with_path(&path) else { continue };
+        let Ok(dev) = Device::with_path(&path) else {
+            continue;
+        };
         let Ok(caps) = dev.query_caps() else { continue };
         let formats = dev
             .enum_formats()
-            .map(|f| f.iter().filter_map(|d| d.fourcc.str().ok().map(str::to_string)).collect())
+            .map(|f| {
+                f.iter()
+                    .filter_map(|d| d.fourcc.str().ok().map(str::to_string))
+                    .collect()
+            })
             .unwrap_or_default();
         // The USB serial sits on the USB device, a few levels above the interface.
         let serial = ["device/../serial", "device/../../serial"]
@@ -56,16 +62,27 @@ struct Streaming {
     height: usize,
 }
 
-fn open(sel: &DeviceSelector, fourcc: &str, width: usize, height: usize, fps: u32) -> Result<Streaming, SourceError> {
+fn open(
+    sel: &DeviceSelector,
+    fourcc: &str,
+    width: usize,
+    height: usize,
+    fps: u32,
+) -> Result<Streaming, SourceError> {
     let devices = scan();
-    let info = sel
-        .pick(&devices, fourcc)
-        .ok_or_else(|| SourceError::Lost(format!("no V4L2 device matches {sel:?} with format {fourcc:?}")))?;
+    let info = sel.pick(&devices, fourcc).ok_or_else(|| {
+        SourceError::Lost(format!(
+            "no V4L2 device matches {sel:?} with format {fourcc:?}"
+        ))
+    })?;
     let dev = Device::with_path(&info.path).map_err(|e| lost(&info.path, e))?;
     let mut fmt = dev.format().map_err(|e| lost(&info.path, e))?;
     fmt.width = width as u32;
     fmt.height = height as u32;
-    let code: [u8; 4] = fourcc.as_bytes().try_into().map_err(|_| SourceError::Fatal(format!("bad FourCC {fourcc:?}")))?;
+    let code: [u8; 4] = fourcc
+        .as_bytes()
+        .try_into()
+        .map_err(|_| SourceError::Fatal(format!("bad FourCC {fourcc:?}")))?;
     fmt.fourcc = FourCC::new(&code);
     let got = dev.set_format(&fmt).map_err(|e| lost(&info.path, e))?;
     if got.width as usize != width || got.height as usize != height || got.fourcc != fmt.fourcc {
@@ -81,7 +98,8 @@ fn open(sel: &DeviceSelector, fourcc: &str, width: usize, height: usize, fps: u3
         let params = v4l::video::capture::Parameters::with_fps(fps);
         dev.set_params(&params).map_err(|e| lost(&info.path, e))?;
     }
-    let mut stream = Stream::with_buffers(&dev, Type::VideoCapture, 4).map_err(|e| lost(&info.path, e))?;
+    let mut stream =
+        Stream::with_buffers(&dev, Type::VideoCapture, 4).map_err(|e| lost(&info.path, e))?;
     // A dequeue that never returns would hang the task: bound it.
     stream.set_timeout(std::time::Duration::from_secs(2));
     Ok(Streaming {
@@ -113,7 +131,12 @@ pub struct V4l2Depth {
 }
 
 impl V4l2Depth {
-    pub fn open(sel: DeviceSelector, intrinsics: Intrinsics, scale_m: f64, fps: u32) -> Result<Self, SourceError> {
+    pub fn open(
+        sel: DeviceSelector,
+        intrinsics: Intrinsics,
+        scale_m: f64,
+        fps: u32,
+    ) -> Result<Self, SourceError> {
         let s = open(&sel, "Z16 ", intrinsics.width(), intrinsics.height(), fps)?;
         Ok(V4l2Depth {
             sel,
@@ -133,7 +156,13 @@ impl DepthSource for V4l2Depth {
     fn next_depth(&mut self) -> Result<Option<Stamped<DepthImage>>, SourceError> {
         if self.s.is_none() {
             // Re-found by what identifies it, wherever it re-enumerated.
-            self.s = Some(open(&self.sel, "Z16 ", self.intrinsics.width(), self.intrinsics.height(), self.fps)?);
+            self.s = Some(open(
+                &self.sel,
+                "Z16 ",
+                self.intrinsics.width(),
+                self.intrinsics.height(),
+                self.fps,
+            )?);
         }
         let s = self.s.as_mut().expect("opened above");
         let (buf, mono_ns, seq) = match s.next() {
@@ -143,9 +172,11 @@ impl DepthSource for V4l2Depth {
                 return Err(e);
             }
         };
-        let data = z16_to_depth(s.width, s.height, &buf, self.scale_m).map_err(|e| SourceError::BadFrame {
-            seq,
-            reason: e.to_string(),
+        let data = z16_to_depth(s.width, s.height, &buf, self.scale_m).map_err(|e| {
+            SourceError::BadFrame {
+                seq,
+                reason: e.to_string(),
+            }
         })?;
         Ok(Some(Stamped { mono_ns, seq, data }))
     }
@@ -162,7 +193,13 @@ pub struct V4l2Color {
 }
 
 impl V4l2Color {
-    pub fn open(sel: DeviceSelector, mjpeg: bool, width: usize, height: usize, fps: u32) -> Result<Self, SourceError> {
+    pub fn open(
+        sel: DeviceSelector,
+        mjpeg: bool,
+        width: usize,
+        height: usize,
+        fps: u32,
+    ) -> Result<Self, SourceError> {
         let fourcc = if mjpeg { "MJPG" } else { "YUYV" };
         let s = open(&sel, fourcc, width, height, fps)?;
         Ok(V4l2Color {
@@ -179,7 +216,13 @@ impl V4l2Color {
 impl FrameSource for V4l2Color {
     fn next_frame(&mut self) -> Result<Option<Stamped<ColorImage>>, SourceError> {
         if self.s.is_none() {
-            self.s = Some(open(&self.sel, self.fourcc, self.width, self.height, self.fps)?);
+            self.s = Some(open(
+                &self.sel,
+                self.fourcc,
+                self.width,
+                self.height,
+                self.fps,
+            )?);
         }
         let s = self.s.as_mut().expect("opened above");
         let (buf, mono_ns, seq) = match s.next() {
