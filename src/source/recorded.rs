@@ -119,55 +119,66 @@ impl Recording {
     }
 }
 
+impl Recording {
+    /// The next entry at or after `*cursor` that has a file of the kind `pick`
+    /// selects, with that file's path; advances the cursor past it.
+    fn next_with(
+        &self,
+        cursor: &mut usize,
+        pick: fn(&FrameEntry) -> &Option<String>,
+    ) -> Option<(&FrameEntry, PathBuf)> {
+        while let Some(entry) = self.frames.get(*cursor) {
+            *cursor += 1;
+            if let Some(name) = pick(entry) {
+                return Some((entry, self.dir.join(name)));
+            }
+        }
+        None
+    }
+}
+
 impl DepthSource for Recording {
     fn intrinsics(&self) -> Intrinsics {
         self.intrinsics
     }
 
     fn next_depth(&mut self) -> Result<Option<Stamped<DepthImage>>, SourceError> {
-        while let Some(entry) = self.frames.get(self.next_depth) {
-            self.next_depth += 1;
-            let Some(name) = &entry.depth else { continue };
-            let path = self.dir.join(name);
-            let bytes = fs::read(&path)
-                .map_err(|e| SourceError::Lost(format!("{}: {e}", path.display())))?;
-            let image = crate::depthio::decode_z16(
-                &bytes,
-                self.meta.width,
-                self.meta.height,
-                self.meta.depth_scale_m,
-            )
-            .map_err(|e| SourceError::BadFrame {
-                seq: entry.seq,
-                reason: format!("{}: {e}", path.display()),
-            })?;
-            return Ok(Some(Stamped {
-                mono_ns: entry.mono_ns,
-                seq: entry.seq,
-                data: image,
-            }));
-        }
-        Ok(None)
+        let mut cursor = self.next_depth;
+        let next = self
+            .next_with(&mut cursor, |e| &e.depth)
+            .map(|(e, p)| (e.seq, e.mono_ns, p));
+        self.next_depth = cursor;
+        let Some((seq, mono_ns, path)) = next else {
+            return Ok(None);
+        };
+        let bytes =
+            fs::read(&path).map_err(|e| SourceError::Lost(format!("{}: {e}", path.display())))?;
+        let data = crate::depthio::decode_z16(
+            &bytes,
+            self.meta.width,
+            self.meta.height,
+            self.meta.depth_scale_m,
+        )
+        .map_err(|e| SourceError::BadFrame {
+            seq,
+            reason: format!("{}: {e}", path.display()),
+        })?;
+        Ok(Some(Stamped { mono_ns, seq, data }))
     }
 }
 
 impl FrameSource for Recording {
     fn next_frame(&mut self) -> Result<Option<Stamped<ColorImage>>, SourceError> {
-        while let Some(entry) = self.frames.get(self.next_color) {
-            self.next_color += 1;
-            let Some(name) = &entry.color else { continue };
-            let path = self.dir.join(name);
-            let image = read_rgb_png(&path).map_err(|reason| SourceError::BadFrame {
-                seq: entry.seq,
-                reason,
-            })?;
-            return Ok(Some(Stamped {
-                mono_ns: entry.mono_ns,
-                seq: entry.seq,
-                data: image,
-            }));
-        }
-        Ok(None)
+        let mut cursor = self.next_color;
+        let next = self
+            .next_with(&mut cursor, |e| &e.color)
+            .map(|(e, p)| (e.seq, e.mono_ns, p));
+        self.next_color = cursor;
+        let Some((seq, mono_ns, path)) = next else {
+            return Ok(None);
+        };
+        let data = read_rgb_png(&path).map_err(|reason| SourceError::BadFrame { seq, reason })?;
+        Ok(Some(Stamped { mono_ns, seq, data }))
     }
 }
 

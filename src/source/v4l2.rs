@@ -58,8 +58,6 @@ fn lost(path: &Path, e: impl std::fmt::Display) -> SourceError {
 struct Streaming {
     path: PathBuf,
     stream: Stream<'static>,
-    width: usize,
-    height: usize,
 }
 
 fn open(
@@ -105,8 +103,6 @@ fn open(
     Ok(Streaming {
         path: info.path.clone(),
         stream,
-        width,
-        height,
     })
 }
 
@@ -121,13 +117,56 @@ impl Streaming {
     }
 }
 
+/// A stream that reopens itself: on an error the device is dropped, and the
+/// next call finds it again by what identifies it, wherever it re-enumerated.
+struct Reopening {
+    sel: DeviceSelector,
+    fourcc: &'static str,
+    width: usize,
+    height: usize,
+    fps: u32,
+    s: Option<Streaming>,
+}
+
+impl Reopening {
+    fn open(
+        sel: DeviceSelector,
+        fourcc: &'static str,
+        width: usize,
+        height: usize,
+        fps: u32,
+    ) -> Result<Self, SourceError> {
+        let s = open(&sel, fourcc, width, height, fps)?;
+        Ok(Reopening {
+            sel,
+            fourcc,
+            width,
+            height,
+            fps,
+            s: Some(s),
+        })
+    }
+
+    fn next(&mut self) -> Result<(Vec<u8>, u64, u64), SourceError> {
+        let s = match &mut self.s {
+            Some(s) => s,
+            None => self.s.insert(open(
+                &self.sel,
+                self.fourcc,
+                self.width,
+                self.height,
+                self.fps,
+            )?),
+        };
+        s.next().inspect_err(|_| self.s = None)
+    }
+}
+
 /// Z16 depth from a V4L2 device.
 pub struct V4l2Depth {
-    sel: DeviceSelector,
-    s: Option<Streaming>,
+    stream: Reopening,
     intrinsics: Intrinsics,
     scale_m: f64,
-    fps: u32,
 }
 
 impl V4l2Depth {
@@ -137,13 +176,11 @@ impl V4l2Depth {
         scale_m: f64,
         fps: u32,
     ) -> Result<Self, SourceError> {
-        let s = open(&sel, "Z16 ", intrinsics.width(), intrinsics.height(), fps)?;
+        let stream = Reopening::open(sel, "Z16 ", intrinsics.width(), intrinsics.height(), fps)?;
         Ok(V4l2Depth {
-            sel,
-            s: Some(s),
+            stream,
             intrinsics,
             scale_m,
-            fps,
         })
     }
 }
@@ -154,29 +191,11 @@ impl DepthSource for V4l2Depth {
     }
 
     fn next_depth(&mut self) -> Result<Option<Stamped<DepthImage>>, SourceError> {
-        if self.s.is_none() {
-            // Re-found by what identifies it, wherever it re-enumerated.
-            self.s = Some(open(
-                &self.sel,
-                "Z16 ",
-                self.intrinsics.width(),
-                self.intrinsics.height(),
-                self.fps,
-            )?);
-        }
-        let s = self.s.as_mut().expect("opened above");
-        let (buf, mono_ns, seq) = match s.next() {
-            Ok(x) => x,
-            Err(e) => {
-                self.s = None;
-                return Err(e);
-            }
-        };
-        let data = z16_to_depth(s.width, s.height, &buf, self.scale_m).map_err(|e| {
-            SourceError::BadFrame {
-                seq,
-                reason: e.to_string(),
-            }
+        let (buf, mono_ns, seq) = self.stream.next()?;
+        let (w, h) = (self.stream.width, self.stream.height);
+        let data = z16_to_depth(w, h, &buf, self.scale_m).map_err(|e| SourceError::BadFrame {
+            seq,
+            reason: e.to_string(),
         })?;
         Ok(Some(Stamped { mono_ns, seq, data }))
     }
@@ -184,12 +203,7 @@ impl DepthSource for V4l2Depth {
 
 /// Colour from a V4L2 device, MJPEG or YUYV.
 pub struct V4l2Color {
-    sel: DeviceSelector,
-    s: Option<Streaming>,
-    fourcc: &'static str,
-    width: usize,
-    height: usize,
-    fps: u32,
+    stream: Reopening,
 }
 
 impl V4l2Color {
@@ -201,41 +215,19 @@ impl V4l2Color {
         fps: u32,
     ) -> Result<Self, SourceError> {
         let fourcc = if mjpeg { "MJPG" } else { "YUYV" };
-        let s = open(&sel, fourcc, width, height, fps)?;
         Ok(V4l2Color {
-            sel,
-            s: Some(s),
-            fourcc,
-            width,
-            height,
-            fps,
+            stream: Reopening::open(sel, fourcc, width, height, fps)?,
         })
     }
 }
 
 impl FrameSource for V4l2Color {
     fn next_frame(&mut self) -> Result<Option<Stamped<ColorImage>>, SourceError> {
-        if self.s.is_none() {
-            self.s = Some(open(
-                &self.sel,
-                self.fourcc,
-                self.width,
-                self.height,
-                self.fps,
-            )?);
-        }
-        let s = self.s.as_mut().expect("opened above");
-        let (buf, mono_ns, seq) = match s.next() {
-            Ok(x) => x,
-            Err(e) => {
-                self.s = None;
-                return Err(e);
-            }
-        };
-        let decoded = if self.fourcc == "MJPG" {
+        let (buf, mono_ns, seq) = self.stream.next()?;
+        let decoded = if self.stream.fourcc == "MJPG" {
             mjpeg_to_rgb(&buf)
         } else {
-            yuyv_to_rgb(s.width, s.height, &buf)
+            yuyv_to_rgb(self.stream.width, self.stream.height, &buf)
         };
         let data = decoded.map_err(|e| SourceError::BadFrame {
             seq,
