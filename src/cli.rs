@@ -57,6 +57,27 @@ enum Command {
     },
     /// Error against run time of every decimation level and model.
     Tradeoff(TradeoffArgs),
+    /// Ground-truth evaluation on the synthetic scenes: tables, JSON and plots.
+    Eval(EvalArgs),
+}
+
+#[derive(clap::Args)]
+struct EvalArgs {
+    /// Output directory (results.json, report.md, decimation.md, plots).
+    #[arg(long, default_value = "eval")]
+    out: PathBuf,
+    /// Directory of the scene files.
+    #[arg(long, default_value = "scenes")]
+    scenes_dir: PathBuf,
+    /// Only these scenes (names in the scene directory, or paths); default all five.
+    #[arg(long = "scene")]
+    scenes: Vec<String>,
+    /// A small run (a third of the resolution, three times the view step), for CI.
+    #[arg(long)]
+    quick: bool,
+    /// No progress bar.
+    #[arg(long)]
+    no_progress: bool,
 }
 
 #[derive(clap::Args)]
@@ -140,6 +161,7 @@ pub fn run() -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Tradeoff(a) => run_tradeoff(a),
+        Command::Eval(a) => run_eval(a),
     }
 }
 
@@ -291,5 +313,22 @@ fn run_tradeoff(a: TradeoffArgs) -> Result<ExitCode> {
         a.repeats,
         tradeoff::markdown(&frames, &rows)
     ))?;
+    Ok(ExitCode::SUCCESS)
+}
+
+fn run_eval(a: EvalArgs) -> Result<ExitCode> {
+    let opts = alfd::eval::EvalOptions {
+        scenes_dir: a.scenes_dir,
+        out_dir: a.out,
+        scenes: a.scenes,
+        quick: a.quick,
+        progress: !a.no_progress,
+        decimation_table: true,
+    };
+    let report = alfd::eval::run(&opts).map_err(|e| match e {
+        alfd::eval::EvalError::Write { .. } => anyhow::Error::new(e),
+        other => bad(other.to_string()),
+    })?;
+    emit(&format!("wrote {}\n", report.display()))?;
     Ok(ExitCode::SUCCESS)
 }

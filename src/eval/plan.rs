@@ -1,0 +1,77 @@
+//! Choosing captures online with the daemon's own trigger
+//! ([`crate::core::trigger`]), fed at every dense view with that view's
+//! spacing, and the equal-capture scaling of a method's spacing.
+
+use crate::core::trigger::{Decision, Opportunity, Trigger, TriggerParams};
+
+/// Trigger settings of the evaluation: no rate limit (the comparison is of
+/// spacings, not of a camera), captures exactly at the spacing (no margin).
+pub fn trigger_params() -> TriggerParams {
+    TriggerParams {
+        rate_max_hz: 1e9,
+        ..TriggerParams::default()
+    }
+}
+
+/// Capture indices among `spacings.len()` dense views `step_m` apart, each
+/// view's spacing multiplied by `scale`. The last view is always captured
+/// (the end of the survey line), so every view lies between two captures.
+pub fn captures(spacings: &[Option<f64>], step_m: f64, speed_mps: f64, scale: f64) -> Vec<usize> {
+    let mut t = Trigger::new(trigger_params());
+    let mut out = Vec::new();
+    for (k, s) in spacings.iter().enumerate() {
+        let o = Opportunity {
+            time_s: k as f64 * step_m / speed_mps,
+            odometer_m: k as f64 * step_m,
+            next_step_m: step_m,
+            spacing_m: s.map(|v| v * scale),
+            pose_fresh: true,
+        };
+        if let Decision::Capture(_) = t.update(&o) {
+            out.push(k);
+        }
+    }
+    if let Some(&last) = out.last() {
+        if last + 1 < spacings.len() {
+            out.push(spacings.len() - 1);
+        }
+    }
+    out
+}
+
+/// The scale (one constant for the whole line) at which the method captures
+/// `target` views, found by bisection on `log(scale)`; the closest count is
+/// returned when `target` is not reachable exactly. Returns `(scale, captures)`.
+pub fn scale_to_count(
+    spacings: &[Option<f64>],
+    step_m: f64,
+    speed_mps: f64,
+    target: usize,
+) -> (f64, Vec<usize>) {
+    let count = |s: f64| captures(spacings, step_m, speed_mps, s);
+    let (mut lo, mut hi) = (1e-4f64, 1e4f64);
+    let mut best = (1.0, count(1.0));
+    let better = |c: &Vec<usize>, b: &Vec<usize>| {
+        (c.len() as i64 - target as i64).abs() < (b.len() as i64 - target as i64).abs()
+    };
+    for _ in 0..80 {
+        let mid = (lo * hi).sqrt();
+        let c = count(mid);
+        if c.len() == target {
+            return (mid, c);
+        }
+        if better(&c, &best.1) {
+            best = (mid, c.clone());
+        }
+        // Larger spacings, fewer captures.
+        if c.len() > target {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+        if hi / lo < 1.0 + 1e-12 {
+            break;
+        }
+    }
+    best
+}

@@ -1,0 +1,102 @@
+//! Image quality: PSNR and SSIM (Wang et al. 2004: 11×11 Gaussian window,
+//! σ = 1.5, K1 = 0.01, K2 = 0.03, mean over the windows fully inside the
+//! image) on single-channel images with values in `[0, peak]`.
+
+/// PSNR in dB; `+inf` for identical images.
+pub fn psnr(a: &[f32], b: &[f32], peak: f64) -> f64 {
+    assert_eq!(a.len(), b.len(), "psnr of images of different sizes");
+    let mse = mse(a, b);
+    if mse == 0.0 {
+        f64::INFINITY
+    } else {
+        10.0 * (peak * peak / mse).log10()
+    }
+}
+
+pub fn mse(a: &[f32], b: &[f32]) -> f64 {
+    let s: f64 = a
+        .iter()
+        .zip(b)
+        .map(|(x, y)| {
+            let d = *x as f64 - *y as f64;
+            d * d
+        })
+        .sum();
+    s / a.len().max(1) as f64
+}
+
+pub const SSIM_WINDOW: usize = 11;
+pub const SSIM_SIGMA: f64 = 1.5;
+pub const SSIM_K1: f64 = 0.01;
+pub const SSIM_K2: f64 = 0.03;
+
+/// The normalised 1-D Gaussian of the SSIM window.
+pub fn gaussian_window() -> [f64; SSIM_WINDOW] {
+    let mut g = [0.0; SSIM_WINDOW];
+    let c = (SSIM_WINDOW / 2) as f64;
+    for (i, v) in g.iter_mut().enumerate() {
+        let x = i as f64 - c;
+        *v = (-x * x / (2.0 * SSIM_SIGMA * SSIM_SIGMA)).exp();
+    }
+    let s: f64 = g.iter().sum();
+    g.iter_mut().for_each(|v| *v /= s);
+    g
+}
+
+/// Mean SSIM of `a` against `b` (`width`×`height`, row-major), dynamic range
+/// `peak`; `None` for images smaller than the window.
+pub fn ssim(a: &[f32], b: &[f32], width: usize, height: usize, peak: f64) -> Option<f64> {
+    assert_eq!(a.len(), width * height);
+    assert_eq!(b.len(), width * height);
+    if width < SSIM_WINDOW || height < SSIM_WINDOW {
+        return None;
+    }
+    let g = gaussian_window();
+    let c1 = (SSIM_K1 * peak).powi(2);
+    let c2 = (SSIM_K2 * peak).powi(2);
+    let ow = width - SSIM_WINDOW + 1;
+    let oh = height - SSIM_WINDOW + 1;
+    // Horizontal pass of the five moments, then vertical, in f64.
+    let mut hz = vec![[0f64; 5]; ow * height];
+    for r in 0..height {
+        let ra = &a[r * width..(r + 1) * width];
+        let rb = &b[r * width..(r + 1) * width];
+        for c in 0..ow {
+            let mut m = [0f64; 5];
+            for (k, gk) in g.iter().enumerate() {
+                let x = ra[c + k] as f64;
+                let y = rb[c + k] as f64;
+                m[0] += gk * x;
+                m[1] += gk * y;
+                m[2] += gk * x * x;
+                m[3] += gk * y * y;
+                m[4] += gk * x * y;
+            }
+            hz[r * ow + c] = m;
+        }
+    }
+    let mut total = 0.0;
+    for r in 0..oh {
+        for c in 0..ow {
+            let mut m = [0f64; 5];
+            for (k, gk) in g.iter().enumerate() {
+                let h = &hz[(r + k) * ow + c];
+                for j in 0..5 {
+                    m[j] += gk * h[j];
+                }
+            }
+            total += ssim_of_moments(m, c1, c2);
+        }
+    }
+    Some(total / (ow * oh) as f64)
+}
+
+/// SSIM of one window from its weighted moments `[μx, μy, E x², E y², E xy]`.
+#[inline]
+pub fn ssim_of_moments(m: [f64; 5], c1: f64, c2: f64) -> f64 {
+    let (mx, my) = (m[0], m[1]);
+    let sxx = m[2] - mx * mx;
+    let syy = m[3] - my * my;
+    let sxy = m[4] - mx * my;
+    ((2.0 * mx * my + c1) * (2.0 * sxy + c2)) / ((mx * mx + my * my + c1) * (sxx + syy + c2))
+}

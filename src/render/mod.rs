@@ -1,0 +1,361 @@
+//! Ray casting of a [`Scene`]: colour (supersampled, so the ground truth has no
+//! aliasing of its own) and metric depth along the optical axis (pixel centre,
+//! `+inf` for sky) for any pose and intrinsics. Deterministic; parallel over
+//! rows. Camera convention as in `crate::synth`: optical axis `(sin φ, 0, −cos φ)`,
+//! along-track image axis (columns) `(cos φ, 0, sin φ)`, across (rows) `(0, −1, 0)`.
+
+use crate::core::{DepthData, DepthImage, Intrinsics};
+use crate::scene::{Scene, Texture};
+use rayon::prelude::*;
+
+/// Where the camera is and how it looks.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Camera {
+    pub position_m: [f64; 3],
+    /// 0 = nadir, positive = tilted forward (towards `+x`).
+    pub pitch_rad: f64,
+    pub intrinsics: Intrinsics,
+}
+
+impl Camera {
+    /// `(optical axis, along-track image axis, across-track image axis)`.
+    #[inline]
+    pub fn basis(&self) -> ([f64; 3], [f64; 3], [f64; 3]) {
+        let (s, c) = self.pitch_rad.sin_cos();
+        ([s, 0.0, -c], [c, 0.0, s], [0.0, -1.0, 0.0])
+    }
+
+    /// Ray direction through continuous pixel position (`col`, `row`), pixel
+    /// centres at `+0.5`, scaled so its component along the optical axis is 1:
+    /// the ray parameter at a hit is the depth.
+    #[inline]
+    pub fn ray(&self, col: f64, row: f64) -> [f64; 3] {
+        let (cx, cy) = self.intrinsics.principal_px();
+        let f = self.intrinsics.focal_px();
+        let x = (col - cx) / f;
+        let y = (row - cy) / f;
+        let (a, u, v) = self.basis();
+        [
+            a[0] + x * u[0] + y * v[0],
+            a[1] + x * u[1] + y * v[1],
+            a[2] + x * u[2] + y * v[2],
+        ]
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RenderOptions {
+    /// Colour samples per pixel along each axis (`n×n` per pixel, box filter).
+    pub supersample: usize,
+}
+
+impl Default for RenderOptions {
+    fn default() -> Self {
+        RenderOptions { supersample: 3 }
+    }
+}
+
+/// One rendered view: linear RGB in `[0, 1]` and depth in metres, row-major.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Frame {
+    pub width: usize,
+    pub height: usize,
+    pub rgb: Vec<[f32; 3]>,
+    pub depth_m: Vec<f32>,
+}
+
+/// What a depth sensor does to the true depth before Z16 quantisation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SensorModel {
+    /// Metres per Z16 unit.
+    pub scale_m: f64,
+    /// Gaussian noise `σ = k·d²` (stereo depth error grows with the square of
+    /// depth); `k` in 1/m.
+    pub noise_per_m: f64,
+    /// Fraction of pixels with no return.
+    pub dropout: f64,
+    /// Range beyond which the sensor gives no return, metres.
+    pub max_range_m: f64,
+    pub seed: u64,
+}
+
+impl Default for SensorModel {
+    fn default() -> Self {
+        SensorModel {
+            scale_m: 0.001,
+            noise_per_m: 0.0,
+            dropout: 0.0,
+            max_range_m: 65.0,
+            seed: 0,
+        }
+    }
+}
+
+impl Frame {
+    /// Rec. 601 luma of each pixel.
+    pub fn luminance(&self) -> Vec<f32> {
+        self.rgb.iter().map(|p| luma(*p)).collect()
+    }
+
+    /// The true depth as the core's depth image (metres, `+inf` sky).
+    pub fn depth_image(&self) -> DepthImage {
+        DepthImage::new(
+            self.width,
+            self.height,
+            DepthData::Metres(self.depth_m.clone()),
+        )
+        .expect("frame size matches its data")
+    }
+
+    /// Depth as a RealSense gives it: Z16 with optional noise and dropout;
+    /// sky, dropped pixels and anything beyond the range are 0 (no return).
+    pub fn z16(&self, sensor: &SensorModel) -> DepthImage {
+        let mut d = self.depth_m.clone();
+        if sensor.noise_per_m > 0.0 {
+            let mut s = sensor.seed ^ 0x5851_F42D_4C95_7F2D;
+            for v in d.iter_mut() {
+                let g = gaussian(&mut s);
+                if v.is_finite() {
+                    let z = *v as f64;
+                    *v = (z + g * sensor.noise_per_m * z * z) as f32;
+                }
+            }
+        }
+        for v in d.iter_mut() {
+            if (*v as f64) > sensor.max_range_m {
+                *v = f32::INFINITY;
+            }
+        }
+        if sensor.dropout > 0.0 {
+            crate::synth::dropout(&mut d, sensor.dropout, sensor.seed);
+        }
+        let data = crate::synth::to_z16(&d, sensor.scale_m);
+        DepthImage::new(
+            self.width,
+            self.height,
+            DepthData::Z16 {
+                data,
+                scale_m: sensor.scale_m,
+            },
+        )
+        .expect("frame size matches its data")
+    }
+
+    /// 8-bit sRGB-less RGB bytes (for PNG output).
+    pub fn rgb8(&self) -> Vec<u8> {
+        self.rgb
+            .iter()
+            .flat_map(|p| p.map(|c| (c.clamp(0.0, 1.0) * 255.0).round() as u8))
+            .collect()
+    }
+}
+
+#[inline]
+pub fn luma(p: [f32; 3]) -> f32 {
+    0.299 * p[0] + 0.587 * p[1] + 0.114 * p[2]
+}
+
+fn gaussian(s: &mut u64) -> f64 {
+    let mut u = || {
+        *s = s.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = *s;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^= z >> 31;
+        ((z >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+    };
+    let (a, b) = (u(), u());
+    (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos()
+}
+
+/// The first surface a ray meets.
+#[derive(Debug, Clone, Copy)]
+pub struct Hit<'a> {
+    /// Ray parameter (the depth, for camera rays from [`Camera::ray`]).
+    pub t: f64,
+    pub normal: [f64; 3],
+    pub texture: &'a Texture,
+}
+
+/// Entry parameter and the axis of the entered face of a ray into a box
+/// (slab method); `None` if it misses or starts inside.
+pub fn ray_box(min: [f64; 3], max: [f64; 3], o: [f64; 3], d: [f64; 3]) -> Option<(f64, usize)> {
+    let (mut t0, mut t1) = (f64::NEG_INFINITY, f64::INFINITY);
+    let mut axis = 0;
+    for k in 0..3 {
+        if d[k] == 0.0 {
+            if o[k] < min[k] || o[k] > max[k] {
+                return None;
+            }
+            continue;
+        }
+        let (a, b) = ((min[k] - o[k]) / d[k], (max[k] - o[k]) / d[k]);
+        let (a, b) = if a < b { (a, b) } else { (b, a) };
+        if a > t0 {
+            t0 = a;
+            axis = k;
+        }
+        t1 = t1.min(b);
+        if t0 > t1 {
+            return None;
+        }
+    }
+    (t0 > 0.0).then_some((t0, axis))
+}
+
+/// First parameter `t > 0` at which the ray meets the ellipsoid surface.
+pub fn ray_ellipsoid(centre: [f64; 3], radii: [f64; 3], o: [f64; 3], d: [f64; 3]) -> Option<f64> {
+    let oc = [
+        (o[0] - centre[0]) / radii[0],
+        (o[1] - centre[1]) / radii[1],
+        (o[2] - centre[2]) / radii[2],
+    ];
+    let dd = [d[0] / radii[0], d[1] / radii[1], d[2] / radii[2]];
+    let a = dot(dd, dd);
+    let b = dot(oc, dd);
+    let c = dot(oc, oc) - 1.0;
+    let disc = b * b - a * c;
+    if disc < 0.0 || a == 0.0 {
+        return None;
+    }
+    let sq = disc.sqrt();
+    let t_near = (-b - sq) / a;
+    if t_near > 0.0 {
+        return Some(t_near);
+    }
+    // Starting inside: the exit is not a surface seen from outside.
+    None
+}
+
+#[inline]
+fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+/// The nearest hit of the ray `o + t·d`, `t > 0`.
+pub fn trace<'a>(scene: &'a Scene, o: [f64; 3], d: [f64; 3]) -> Option<Hit<'a>> {
+    let mut best: Option<Hit<'a>> = None;
+    if let Some(g) = &scene.ground {
+        if d[2] < 0.0 && o[2] > g.z_m {
+            best = Some(Hit {
+                t: (g.z_m - o[2]) / d[2],
+                normal: [0.0, 0.0, 1.0],
+                texture: &g.texture,
+            });
+        }
+    }
+    for b in &scene.boxes {
+        if let Some((t, axis)) = ray_box(b.min_m, b.max_m, o, d) {
+            if best.is_none_or(|h| t < h.t) {
+                let mut normal = [0.0; 3];
+                normal[axis] = -d[axis].signum();
+                let texture = if axis == 2 && normal[2] > 0.0 {
+                    &b.roof
+                } else {
+                    &b.texture
+                };
+                best = Some(Hit { t, normal, texture });
+            }
+        }
+    }
+    for e in &scene.ellipsoids {
+        if let Some(t) = ray_ellipsoid(e.centre_m, e.radii_m, o, d) {
+            if best.is_none_or(|h| t < h.t) {
+                let p = [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]];
+                let mut n = [0.0; 3];
+                for k in 0..3 {
+                    n[k] = (p[k] - e.centre_m[k]) / (e.radii_m[k] * e.radii_m[k]);
+                }
+                let l = dot(n, n).sqrt();
+                best = Some(Hit {
+                    t,
+                    normal: [n[0] / l, n[1] / l, n[2] / l],
+                    texture: &e.texture,
+                });
+            }
+        }
+    }
+    best
+}
+
+/// Fixed sun: walls, roofs and crowns shade differently, as in daylight.
+const SUN: [f64; 3] = [0.37139068, 0.55708601, 0.74278135];
+
+#[inline]
+fn shade(scene: &Scene, o: [f64; 3], d: [f64; 3]) -> [f32; 3] {
+    match trace(scene, o, d) {
+        None => scene.sky_rgb,
+        Some(h) => {
+            let p = [o[0] + h.t * d[0], o[1] + h.t * d[1], o[2] + h.t * d[2]];
+            let a = h.texture.albedo(p);
+            let l = (0.45 + 0.55 * dot(h.normal, SUN).max(0.0)) as f32;
+            [a[0] * l, a[1] * l, a[2] * l]
+        }
+    }
+}
+
+/// Renders colour and depth of `scene` from `camera`.
+pub fn render(scene: &Scene, camera: &Camera, opts: &RenderOptions) -> Frame {
+    let w = camera.intrinsics.width();
+    let h = camera.intrinsics.height();
+    let n = opts.supersample.max(1);
+    let o = camera.position_m;
+    let mut rgb = vec![[0f32; 3]; w * h];
+    let mut depth_m = vec![0f32; w * h];
+    let inv = 1.0 / (n * n) as f32;
+    rgb.par_chunks_mut(w)
+        .zip(depth_m.par_chunks_mut(w))
+        .enumerate()
+        .for_each(|(r, (rgb_row, depth_row))| {
+            for i in 0..w {
+                let d = camera.ray(i as f64 + 0.5, r as f64 + 0.5);
+                depth_row[i] = trace(scene, o, d).map_or(f32::INFINITY, |h| h.t as f32);
+                let mut acc = [0f32; 3];
+                for sy in 0..n {
+                    for sx in 0..n {
+                        let col = i as f64 + (sx as f64 + 0.5) / n as f64;
+                        let row = r as f64 + (sy as f64 + 0.5) / n as f64;
+                        let c = shade(scene, o, camera.ray(col, row));
+                        acc[0] += c[0];
+                        acc[1] += c[1];
+                        acc[2] += c[2];
+                    }
+                }
+                rgb_row[i] = [acc[0] * inv, acc[1] * inv, acc[2] * inv];
+            }
+        });
+    Frame {
+        width: w,
+        height: h,
+        rgb,
+        depth_m,
+    }
+}
+
+/// The camera of dense view `x_m` on a scene's survey line at `width`×`height`.
+pub fn survey_camera(scene: &Scene, x_m: f64, width: usize, height: usize) -> Camera {
+    let s = &scene.survey;
+    Camera {
+        position_m: [x_m, s.y_m, s.altitude_m],
+        pitch_rad: s.pitch_rad,
+        intrinsics: Intrinsics::from_hfov_deg(width, height, s.hfov_deg, None)
+            .expect("scene validation keeps the field of view in range"),
+    }
+}
+
+/// Writes 8-bit RGB as a PNG file.
+pub fn write_png(
+    path: &std::path::Path,
+    width: usize,
+    height: usize,
+    rgb8: &[u8],
+) -> std::io::Result<()> {
+    let file = std::fs::File::create(path)?;
+    let mut enc = png::Encoder::new(std::io::BufWriter::new(file), width as u32, height as u32);
+    enc.set_color(png::ColorType::Rgb);
+    enc.set_depth(png::BitDepth::Eight);
+    let mut w = enc.write_header().map_err(std::io::Error::other)?;
+    w.write_image_data(rgb8).map_err(std::io::Error::other)?;
+    w.finish().map_err(std::io::Error::other)?;
+    Ok(())
+}
