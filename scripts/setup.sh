@@ -9,6 +9,8 @@ command -v cargo >/dev/null || { echo "setup: cargo not found; install Rust (rus
 # Debian packages: python3 runs scripts/bench-ratios.py.
 need=()
 command -v python3 >/dev/null || need+=(python3)
+# pip installs pymavlink below (tests/interop_pymavlink.rs plays a ground station with it).
+python3 -m pip --version >/dev/null 2>&1 || need+=(python3-pip)
 # libclang-dev: the v4l2 feature builds V4L2 bindings with bindgen.
 dpkg -s libclang-dev >/dev/null 2>&1 || need+=(libclang-dev)
 # exiftool: the capture tests read the EXIF GPS tags back.
@@ -18,6 +20,12 @@ if ((${#need[@]})); then
     [ "$(id -u)" -eq 0 ] || sudo="sudo"
     $sudo apt-get update -q
     $sudo apt-get install -y -q "${need[@]}"
+fi
+
+# pymavlink: the ground-station side of tests/interop_pymavlink.rs (which CI must run).
+if ! python3 -c "import pymavlink" 2>/dev/null; then
+    python3 -m pip install --quiet pymavlink 2>/dev/null \
+        || python3 -m pip install --quiet --break-system-packages pymavlink
 fi
 
 cargo fetch --locked

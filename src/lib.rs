@@ -6,6 +6,7 @@ pub mod config;
 pub mod core;
 pub mod depthio;
 pub mod eval;
+pub mod link;
 pub mod metrics;
 pub mod render;
 pub mod report;

@@ -1,1 +1,79 @@
-//! firmware-sim: a simulated autopilot (work in progress).
+//! firmware-sim: a simulated autopilot for alfd's tests and bench. It flies an analytic survey,
+//! streams MAVLink telemetry stamped by its own boot clock over a pty, serial port, UDP or TCP,
+//! answers TIMESYNC and camera commands, records the truth, and injects faults on demand.
+
+pub mod clock;
+pub mod config;
+pub mod faults;
+pub mod geo;
+pub mod pty;
+mod sim;
+pub mod trajectory;
+mod transport;
+pub mod truth;
+
+pub use clock::mono_ns;
+pub use config::{ConfigError, FaultKind, Pattern, SimConfig, Transport};
+pub use faults::Noise;
+pub use sim::{start, SimError, SimHandle, SimStats};
+pub use truth::Truth;
+
+use std::time::Duration;
+
+/// A fault injected at run time through [`SimHandle::inject`].
+#[derive(Clone, Debug, PartialEq)]
+pub enum Fault {
+    /// Close the link (the pty, the serial port, the socket) and reopen it after `duration`.
+    LinkLoss { duration: Duration },
+    /// Restart the boot clock; nothing is sent for `silence` (the boot) and stream rates return
+    /// to the configured ones.
+    Reboot { silence: Duration },
+    /// Reported positions jump by `offset_m` (north, east, down) for `duration`; velocities do not.
+    GpsGlitch {
+        offset_m: [f64; 3],
+        duration: Duration,
+    },
+    /// No telemetry (heartbeats and TIMESYNC replies continue) for `duration`.
+    Silence { duration: Duration },
+    /// Change the wire's noise from now on.
+    Noise(Noise),
+}
+
+/// What happened, with the monotonic instant it happened at.
+#[derive(Clone, Debug, PartialEq)]
+pub enum SimEvent {
+    LinkUp {
+        mono_ns: u64,
+    },
+    LinkDown {
+        mono_ns: u64,
+    },
+    Rebooted {
+        mono_ns: u64,
+    },
+    GlitchStart {
+        mono_ns: u64,
+    },
+    GlitchEnd {
+        mono_ns: u64,
+    },
+    SilenceStart {
+        mono_ns: u64,
+    },
+    SilenceEnd {
+        mono_ns: u64,
+    },
+    /// A message arrived (after CRC): who sent it, its id, and the command for COMMAND_LONG/INT.
+    Received {
+        mono_ns: u64,
+        system_id: u8,
+        component_id: u8,
+        msg_id: u32,
+        command: Option<u32>,
+    },
+    /// A CAMERA_TRIGGER went out (distance trigger or capture command).
+    Capture {
+        mono_ns: u64,
+        seq: u32,
+    },
+}

@@ -2,14 +2,20 @@
 //! No async runtime, no files, no devices, no clock: everything here is a plain function
 //! or a state machine over its arguments (a test enforces it).
 
+pub mod allowlist;
+pub mod backoff;
 pub mod depth;
 pub mod estimate;
+pub mod geo;
+pub mod glitch;
 pub mod inverse;
 pub mod occlusion;
 pub mod params;
 pub mod plane;
+pub mod pose;
 pub mod score;
 pub mod spacing;
+pub mod timesync;
 pub mod trigger;
 
 pub use depth::{DepthData, DepthError, DepthImage, Intrinsics, IntrinsicsError, TrackAxis};

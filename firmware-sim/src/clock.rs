@@ -1,0 +1,36 @@
+//! This machine's CLOCK_MONOTONIC in nanoseconds (the clock alfd's companion side and V4L2
+//! timestamps use), and the autopilot's boot clock derived from it with a drift.
+
+/// CLOCK_MONOTONIC now, in nanoseconds.
+pub fn mono_ns() -> u64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: clock_gettime writes into the timespec we own; CLOCK_MONOTONIC always exists on Linux.
+    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
+    ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
+}
+
+/// A tokio instant `ns` from now on the monotonic clock (now if in the past).
+pub fn instant_at(mono: u64) -> tokio::time::Instant {
+    let now = mono_ns();
+    tokio::time::Instant::now() + std::time::Duration::from_nanos(mono.saturating_sub(now))
+}
+
+/// The autopilot's boot clock: restarted at `boot_mono_ns`, running `1 + drift` times as fast.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BootClock {
+    pub boot_mono_ns: u64,
+    pub drift: f64,
+}
+
+impl BootClock {
+    pub fn boot_ns(&self, mono: u64) -> u64 {
+        (mono.saturating_sub(self.boot_mono_ns) as f64 * (1.0 + self.drift)).round() as u64
+    }
+
+    pub fn mono_of_boot_ns(&self, boot_ns: u64) -> u64 {
+        self.boot_mono_ns + (boot_ns as f64 / (1.0 + self.drift)).round() as u64
+    }
+}

@@ -1,0 +1,719 @@
+//! The engine: one task owns the vehicle (trajectory, boot clock, stream schedule, camera
+//! trigger, active faults); the transport task owns the wire. The handle injects faults and
+//! reads the truth; events come out on a broadcast channel.
+
+use crate::clock::{instant_at, mono_ns, BootClock};
+use crate::config::{FaultKind, SimConfig};
+use crate::faults::{delay, mangle, Noise, Rng};
+use crate::geo::ned_to_geodetic;
+use crate::trajectory::{quat_from_rpy, Trajectory};
+use crate::transport::{self, Inbound, LinkCtl, LinkIo, Outgoing};
+use crate::truth::{Line, Truth};
+use crate::{Fault, SimEvent};
+use mavlink::dialects::common::*;
+use mavlink::{MavHeader, MavlinkVersion, Message};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+use tokio::sync::{broadcast, mpsc, oneshot};
+use tokio::task::JoinHandle;
+
+#[derive(Debug, thiserror::Error)]
+pub enum SimError {
+    #[error("opening the link: {0}")]
+    Link(#[from] std::io::Error),
+    #[error("truth file {path}: {source}")]
+    Truth {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("the simulator has stopped")]
+    Stopped,
+}
+
+/// Counters of what the simulator sent and what the wire did to it.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SimStats {
+    pub frames_sent: u64,
+    pub frames_dropped: u64,
+    pub frames_corrupted: u64,
+    pub bytes_corrupted: u64,
+    /// Frames lost because the transport task was behind (should stay 0).
+    pub frames_overflowed: u64,
+    pub received: u64,
+}
+
+struct Shared {
+    traj: Trajectory,
+    origin: [f64; 3],
+    start_mono_ns: u64,
+    boot: Mutex<Vec<BootClock>>,
+    stats: Mutex<SimStats>,
+}
+
+impl Shared {
+    fn truth(&self, mono: u64) -> Truth {
+        let t = mono.saturating_sub(self.start_mono_ns) as f64 * 1e-9;
+        let s = self.traj.state(t);
+        let boots = self.boot.lock().expect("boot lock");
+        let boot = boots
+            .iter()
+            .rev()
+            .find(|b| b.boot_mono_ns <= mono)
+            .or(boots.first())
+            .copied();
+        let time_boot_ms = boot.map_or(0.0, |b| b.boot_ns(mono) as f64 * 1e-6);
+        let g = ned_to_geodetic(self.origin, s.pos_ned_m);
+        Truth {
+            mono_ns: mono,
+            time_boot_ms,
+            lat_deg: g[0],
+            lon_deg: g[1],
+            alt_m: g[2],
+            pos_ned_m: s.pos_ned_m,
+            vel_ned_mps: s.vel_ned_mps,
+            rpy_deg: s.rpy_rad.map(f64::to_degrees),
+            q: quat_from_rpy(s.rpy_rad),
+        }
+    }
+}
+
+enum Control {
+    Inject(Fault, oneshot::Sender<u64>),
+    Stop,
+}
+
+/// The running simulator.
+pub struct SimHandle {
+    address: String,
+    link_path: Option<PathBuf>,
+    control: mpsc::Sender<Control>,
+    events: broadcast::Sender<SimEvent>,
+    shared: Arc<Shared>,
+    task: JoinHandle<()>,
+}
+
+impl SimHandle {
+    /// The rust-mavlink address alfd should open (`serial:PATH:921600` for a pty, where PATH is
+    /// a symlink the simulator keeps pointing at the current pty).
+    pub fn address(&self) -> &str {
+        &self.address
+    }
+
+    /// The pty's stable symlink, if the transport is a pty.
+    pub fn link_path(&self) -> Option<&Path> {
+        self.link_path.as_deref()
+    }
+
+    pub fn subscribe(&self) -> broadcast::Receiver<SimEvent> {
+        self.events.subscribe()
+    }
+
+    /// Apply a fault now; resolves with the monotonic instant it took effect.
+    pub async fn inject(&self, fault: Fault) -> Result<u64, SimError> {
+        let (tx, rx) = oneshot::channel();
+        self.control
+            .send(Control::Inject(fault, tx))
+            .await
+            .map_err(|_| SimError::Stopped)?;
+        rx.await.map_err(|_| SimError::Stopped)
+    }
+
+    /// The true pose at a monotonic instant.
+    pub fn truth_at_mono_ns(&self, mono_ns: u64) -> Truth {
+        self.shared.truth(mono_ns)
+    }
+
+    /// The survey origin (lat deg, lon deg, alt m) that local NED truth is relative to.
+    pub fn origin(&self) -> [f64; 3] {
+        self.shared.origin
+    }
+
+    pub fn stats(&self) -> SimStats {
+        *self.shared.stats.lock().expect("stats lock")
+    }
+
+    /// Stop and wait for the engine to finish (the truth file is flushed).
+    pub async fn shutdown(self) {
+        let _ = self.control.send(Control::Stop).await;
+        let _ = self.task.await;
+    }
+}
+
+/// Start the simulator on the current tokio runtime.
+pub async fn start(config: SimConfig) -> Result<SimHandle, SimError> {
+    let (events, _) = broadcast::channel(4096);
+    let io = transport::start(config.transport.clone(), events.clone()).await?;
+    let truth = match &config.truth_path {
+        Some(p) => Some(std::io::BufWriter::new(std::fs::File::create(p).map_err(
+            |source| SimError::Truth {
+                path: p.clone(),
+                source,
+            },
+        )?)),
+        None => None,
+    };
+    let now = mono_ns();
+    let boot = BootClock {
+        boot_mono_ns: now,
+        drift: config.clock_drift_ppm * 1e-6,
+    };
+    let s = &config.survey;
+    let shared = Arc::new(Shared {
+        traj: Trajectory::new(s, config.faults.seed),
+        origin: [s.origin_lat_deg, s.origin_lon_deg, s.origin_alt_m],
+        start_mono_ns: now,
+        boot: Mutex::new(vec![boot]),
+        stats: Mutex::new(SimStats::default()),
+    });
+    let (control, control_rx) = mpsc::channel(16);
+    let address = io.address.clone();
+    let link_path = io.link_path.clone();
+    let mut engine = Engine::new(config, shared.clone(), events.clone(), boot, truth);
+    let task = tokio::spawn(async move { engine.run(io, control_rx).await });
+    Ok(SimHandle {
+        address,
+        link_path,
+        control,
+        events,
+        shared,
+        task,
+    })
+}
+
+/// The streamed messages, by MAVLink id.
+const STREAM_IDS: [u32; 8] = [0, 1, 30, 31, 33, 32, 24, 2];
+
+struct Engine {
+    cfg: SimConfig,
+    shared: Arc<Shared>,
+    events: broadcast::Sender<SimEvent>,
+    boot: BootClock,
+    rng: Rng,
+    noise: Noise,
+    seq: u8,
+    last_delivery: tokio::time::Instant,
+    /// Per stream: period (ms, 0 = off) and next due boot ms.
+    streams: [(u64, u64); 8],
+    silent_until: u64,
+    quiet_until: u64,
+    glitch: Option<([f64; 3], u64)>,
+    trigger: Option<(f64, f64)>,
+    capture_seq: u32,
+    pending: Vec<(u64, Fault)>,
+    truth: Option<std::io::BufWriter<std::fs::File>>,
+}
+
+fn period_ms(hz: f64) -> u64 {
+    if hz <= 0.0 {
+        0
+    } else {
+        ((1000.0 / hz).round() as u64).max(1)
+    }
+}
+
+impl Engine {
+    fn new(
+        cfg: SimConfig,
+        shared: Arc<Shared>,
+        events: broadcast::Sender<SimEvent>,
+        boot: BootClock,
+        truth: Option<std::io::BufWriter<std::fs::File>>,
+    ) -> Self {
+        let start = shared.start_mono_ns;
+        let pending = cfg
+            .faults
+            .events
+            .iter()
+            .map(|e| {
+                let f = match e.kind {
+                    FaultKind::LinkLoss => Fault::LinkLoss {
+                        duration: e.duration,
+                    },
+                    FaultKind::Reboot => Fault::Reboot {
+                        silence: e.duration,
+                    },
+                    FaultKind::GpsGlitch => Fault::GpsGlitch {
+                        offset_m: e.offset_m,
+                        duration: e.duration,
+                    },
+                    FaultKind::Silence => Fault::Silence {
+                        duration: e.duration,
+                    },
+                };
+                (start + e.at.as_nanos() as u64, f)
+            })
+            .collect();
+        let noise = Noise {
+            corrupt_byte_rate: cfg.faults.corrupt_byte_rate,
+            drop_rate: cfg.faults.drop_rate,
+            latency: cfg.faults.latency,
+            jitter: cfg.faults.jitter,
+        };
+        let mut e = Engine {
+            rng: Rng::new(cfg.faults.seed),
+            noise,
+            seq: 0,
+            last_delivery: tokio::time::Instant::now(),
+            streams: [(0, 0); 8],
+            silent_until: 0,
+            quiet_until: 0,
+            glitch: None,
+            trigger: None,
+            capture_seq: 0,
+            pending,
+            truth,
+            cfg,
+            shared,
+            events,
+            boot,
+        };
+        e.reset_streams();
+        e
+    }
+
+    /// The configured period (ms, 0 = off) of each stream.
+    fn configured_periods(&self) -> [u64; 8] {
+        let r = &self.cfg.streams;
+        [
+            r.heartbeat,
+            r.sys_status,
+            r.attitude,
+            r.attitude_quaternion,
+            r.global_position_int,
+            r.local_position_ned,
+            r.gps_raw_int,
+            r.system_time,
+        ]
+        .map(period_ms)
+    }
+
+    fn reset_streams(&mut self) {
+        for (k, p) in self.configured_periods().into_iter().enumerate() {
+            self.streams[k] = (p, 1 + k as u64);
+        }
+    }
+
+    fn next_wake(&self) -> u64 {
+        let mut t = u64::MAX;
+        for (p, due) in self.streams {
+            if p > 0 {
+                t = t.min(self.boot.mono_of_boot_ns(due * 1_000_000));
+            }
+        }
+        if let Some((_, at)) = self.trigger {
+            t = t.min(at as u64);
+        }
+        for (at, _) in &self.pending {
+            t = t.min(*at);
+        }
+        for end in [
+            self.silent_until,
+            self.quiet_until,
+            self.glitch.map_or(0, |g| g.1),
+        ] {
+            if end > 0 {
+                t = t.min(end);
+            }
+        }
+        t
+    }
+
+    async fn run(&mut self, mut io: LinkIo, mut control: mpsc::Receiver<Control>) {
+        loop {
+            let wake = instant_at(self.next_wake());
+            tokio::select! {
+                _ = tokio::time::sleep_until(wake) => self.tick(&io, mono_ns()).await,
+                m = io.inbound.recv() => match m {
+                    Some(m) => self.on_inbound(&io, m),
+                    None => break,
+                },
+                c = control.recv() => match c {
+                    Some(Control::Inject(f, done)) => {
+                        let t = self.apply(&io, f).await;
+                        let _ = done.send(t);
+                    }
+                    Some(Control::Stop) | None => break,
+                },
+            }
+        }
+        if let Some(w) = self.truth.as_mut() {
+            let _ = w.flush();
+        }
+        io.task.abort();
+    }
+
+    async fn tick(&mut self, io: &LinkIo, now: u64) {
+        let due: Vec<(u64, Fault)> = self
+            .pending
+            .iter()
+            .filter(|(at, _)| *at <= now)
+            .cloned()
+            .collect();
+        self.pending.retain(|(at, _)| *at > now);
+        for (_, f) in due {
+            self.apply(io, f).await;
+        }
+        if self.silent_until > 0 && now >= self.silent_until {
+            self.silent_until = 0;
+            let _ = self.events.send(SimEvent::SilenceEnd { mono_ns: now });
+        }
+        if self.quiet_until > 0 && now >= self.quiet_until {
+            self.quiet_until = 0;
+        }
+        if let Some((_, end)) = self.glitch {
+            if now >= end {
+                self.glitch = None;
+                let _ = self.events.send(SimEvent::GlitchEnd { mono_ns: now });
+            }
+        }
+        if let Some((dist, at)) = self.trigger {
+            if at as u64 <= now {
+                self.capture(io, at as u64, "trigger");
+                let t = (at - self.shared.start_mono_ns as f64) * 1e-9;
+                let next_path = self.shared.traj.state(t).path_m + dist;
+                let t_next = self.shared.traj.time_at_path(t, next_path);
+                self.trigger = Some((dist, self.shared.start_mono_ns as f64 + t_next * 1e9));
+            }
+        }
+        let boot_now_ms = self.boot.boot_ns(now) / 1_000_000;
+        for (k, id) in STREAM_IDS.into_iter().enumerate() {
+            let (p, due) = self.streams[k];
+            if p == 0 || due > boot_now_ms {
+                continue;
+            }
+            // Far behind (a stall): skip ahead rather than burst.
+            let due = if boot_now_ms - due > 1000 {
+                boot_now_ms
+            } else {
+                due
+            };
+            self.streams[k].1 = due + p;
+            self.emit_stream(io, id, due, now);
+        }
+    }
+
+    fn telemetry_allowed(&self, msg_id: u32, now: u64) -> bool {
+        if now < self.quiet_until {
+            return false;
+        }
+        msg_id == 0 || now >= self.silent_until || self.silent_until == 0
+    }
+
+    /// Emit stream message `id` sampled at boot time `boot_ms`.
+    fn emit_stream(&mut self, io: &LinkIo, id: u32, boot_ms: u64, now: u64) {
+        if !self.telemetry_allowed(id, now) {
+            return;
+        }
+        let mono = self.boot.mono_of_boot_ns(boot_ms * 1_000_000);
+        let tr = self.shared.truth(mono);
+        let mut ned = tr.pos_ned_m;
+        if let Some((off, _)) = self.glitch {
+            for k in 0..3 {
+                ned[k] += off[k];
+            }
+        }
+        let g = ned_to_geodetic(self.shared.origin, ned);
+        let t32 = boot_ms as u32;
+        let v = tr.vel_ned_mps;
+        let rpy = tr.rpy_deg.map(f64::to_radians);
+        let st = self
+            .shared
+            .traj
+            .state(mono.saturating_sub(self.shared.start_mono_ns) as f64 * 1e-9);
+        let msg = match id {
+            0 => MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+                custom_mode: 0,
+                mavtype: MavType::MAV_TYPE_QUADROTOR,
+                autopilot: MavAutopilot::MAV_AUTOPILOT_PX4,
+                base_mode: MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED
+                    | MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+                system_status: MavState::MAV_STATE_ACTIVE,
+                mavlink_version: 3,
+            }),
+            1 => MavMessage::SYS_STATUS(SYS_STATUS_DATA {
+                voltage_battery: 15_800,
+                current_battery: 1_200,
+                battery_remaining: 80,
+                load: 300,
+                ..Default::default()
+            }),
+            30 => MavMessage::ATTITUDE(ATTITUDE_DATA {
+                time_boot_ms: t32,
+                roll: rpy[0] as f32,
+                pitch: rpy[1] as f32,
+                yaw: rpy[2] as f32,
+                rollspeed: st.rates_rps[0] as f32,
+                pitchspeed: st.rates_rps[1] as f32,
+                yawspeed: st.rates_rps[2] as f32,
+            }),
+            31 => MavMessage::ATTITUDE_QUATERNION(ATTITUDE_QUATERNION_DATA {
+                time_boot_ms: t32,
+                q1: tr.q[0] as f32,
+                q2: tr.q[1] as f32,
+                q3: tr.q[2] as f32,
+                q4: tr.q[3] as f32,
+                rollspeed: st.rates_rps[0] as f32,
+                pitchspeed: st.rates_rps[1] as f32,
+                yawspeed: st.rates_rps[2] as f32,
+                repr_offset_q: [0.0; 4],
+            }),
+            33 => MavMessage::GLOBAL_POSITION_INT(GLOBAL_POSITION_INT_DATA {
+                time_boot_ms: t32,
+                lat: (g[0] * 1e7).round() as i32,
+                lon: (g[1] * 1e7).round() as i32,
+                alt: (g[2] * 1e3).round() as i32,
+                relative_alt: ((g[2] - self.shared.origin[2]) * 1e3).round() as i32,
+                vx: (v[0] * 100.0).round() as i16,
+                vy: (v[1] * 100.0).round() as i16,
+                vz: (v[2] * 100.0).round() as i16,
+                hdg: (tr.rpy_deg[2].rem_euclid(360.0) * 100.0).round() as u16 % 36_000,
+            }),
+            32 => MavMessage::LOCAL_POSITION_NED(LOCAL_POSITION_NED_DATA {
+                time_boot_ms: t32,
+                x: ned[0] as f32,
+                y: ned[1] as f32,
+                z: ned[2] as f32,
+                vx: v[0] as f32,
+                vy: v[1] as f32,
+                vz: v[2] as f32,
+            }),
+            24 => MavMessage::GPS_RAW_INT(GPS_RAW_INT_DATA {
+                time_usec: boot_ms * 1000,
+                lat: (g[0] * 1e7).round() as i32,
+                lon: (g[1] * 1e7).round() as i32,
+                alt: (g[2] * 1e3).round() as i32,
+                eph: 70,
+                epv: 110,
+                vel: (v[0].hypot(v[1]) * 100.0).round() as u16,
+                cog: ((v[1].atan2(v[0]).to_degrees().rem_euclid(360.0)) * 100.0) as u16 % 36_000,
+                fix_type: GpsFixType::GPS_FIX_TYPE_3D_FIX,
+                satellites_visible: 16,
+                ..Default::default()
+            }),
+            2 => MavMessage::SYSTEM_TIME(SYSTEM_TIME_DATA {
+                time_unix_usec: std::time::SystemTime::now()
+                    .duration_since(std::time::UNIX_EPOCH)
+                    .map_or(0, |d| d.as_micros() as u64),
+                time_boot_ms: t32,
+            }),
+            _ => return,
+        };
+        if id == 33 && self.cfg.truth_every_step {
+            self.write_truth("step", None, tr);
+        }
+        self.send(io, &msg, now);
+    }
+
+    fn send(&mut self, io: &LinkIo, msg: &MavMessage, now: u64) {
+        let version = if self.cfg.mavlink_version == 1 {
+            MavlinkVersion::V1
+        } else {
+            MavlinkVersion::V2
+        };
+        if version == MavlinkVersion::V1 && msg.message_id() > 255 {
+            return;
+        }
+        let header = MavHeader {
+            system_id: self.cfg.system_id.into(),
+            component_id: self.cfg.component_id,
+            sequence: self.seq,
+        };
+        self.seq = self.seq.wrapping_add(1);
+        let mut bytes = Vec::with_capacity(64);
+        if mavlink::write_versioned_msg(&mut bytes, version, header, msg).is_err() {
+            return;
+        }
+        let mut stats = self.shared.stats.lock().expect("stats lock");
+        match mangle(&mut self.rng, &self.noise, &mut bytes) {
+            None => {
+                stats.frames_dropped += 1;
+                return;
+            }
+            Some(n) if n > 0 => {
+                stats.frames_corrupted += 1;
+                stats.bytes_corrupted += n as u64;
+            }
+            Some(_) => {}
+        }
+        let at = (instant_at(now) + delay(&mut self.rng, &self.noise)).max(self.last_delivery);
+        self.last_delivery = at;
+        match io.out.try_send(Outgoing { at, bytes }) {
+            Ok(()) => stats.frames_sent += 1,
+            Err(_) => stats.frames_overflowed += 1,
+        }
+    }
+
+    fn write_truth(&mut self, event: &str, seq: Option<u32>, truth: Truth) {
+        if let Some(w) = self.truth.as_mut() {
+            let line =
+                serde_json::to_string(&Line { event, seq, truth }).expect("truth serialises");
+            let _ = writeln!(w, "{line}");
+            if event != "step" {
+                let _ = w.flush();
+            }
+        }
+    }
+
+    fn capture(&mut self, io: &LinkIo, mono: u64, why: &str) {
+        self.capture_seq += 1;
+        let seq = self.capture_seq;
+        let boot_us = self.boot.boot_ns(mono) / 1000;
+        let msg = MavMessage::CAMERA_TRIGGER(CAMERA_TRIGGER_DATA {
+            time_usec: boot_us,
+            seq,
+        });
+        self.send(io, &msg, mono_ns());
+        let truth = self.shared.truth(mono);
+        self.write_truth(why, Some(seq), truth);
+        let _ = self.events.send(SimEvent::Capture { mono_ns: mono, seq });
+    }
+
+    async fn apply(&mut self, io: &LinkIo, f: Fault) -> u64 {
+        let now = mono_ns();
+        match f {
+            Fault::LinkLoss { duration } => {
+                let (tx, rx) = oneshot::channel();
+                if io
+                    .ctl
+                    .send(LinkCtl::Down { duration, done: tx })
+                    .await
+                    .is_ok()
+                {
+                    return rx.await.unwrap_or(now);
+                }
+            }
+            Fault::Reboot { silence } => {
+                self.boot = BootClock {
+                    boot_mono_ns: now,
+                    ..self.boot
+                };
+                self.shared.boot.lock().expect("boot lock").push(self.boot);
+                self.reset_streams();
+                self.trigger = None;
+                self.quiet_until = if silence.is_zero() {
+                    0
+                } else {
+                    now + silence.as_nanos() as u64
+                };
+                let _ = self.events.send(SimEvent::Rebooted { mono_ns: now });
+            }
+            Fault::GpsGlitch { offset_m, duration } => {
+                self.glitch = Some((offset_m, now + duration.as_nanos() as u64));
+                let _ = self.events.send(SimEvent::GlitchStart { mono_ns: now });
+            }
+            Fault::Silence { duration } => {
+                self.silent_until = now + duration.as_nanos() as u64;
+                let _ = self.events.send(SimEvent::SilenceStart { mono_ns: now });
+            }
+            Fault::Noise(n) => self.noise = n,
+        }
+        now
+    }
+
+    fn on_inbound(&mut self, io: &LinkIo, m: Inbound) {
+        let Inbound {
+            mono_ns: now,
+            header,
+            msg,
+        } = m;
+        let command = match &msg {
+            MavMessage::COMMAND_LONG(c) => Some(c.command as u32),
+            MavMessage::COMMAND_INT(c) => Some(c.command as u32),
+            _ => None,
+        };
+        self.shared.stats.lock().expect("stats lock").received += 1;
+        let _ = self.events.send(SimEvent::Received {
+            mono_ns: now,
+            system_id: header.system_id as u8,
+            component_id: header.component_id,
+            msg_id: msg.message_id(),
+            command,
+        });
+        if now < self.quiet_until {
+            return;
+        }
+        match msg {
+            MavMessage::TIMESYNC(t) if t.tc1 == 0 => {
+                let reply = MavMessage::TIMESYNC(TIMESYNC_DATA {
+                    tc1: self.boot.boot_ns(mono_ns()) as i64,
+                    ts1: t.ts1,
+                    target_system: header.system_id as u8,
+                    target_component: header.component_id,
+                });
+                self.send(io, &reply, mono_ns());
+            }
+            MavMessage::COMMAND_LONG(c)
+                if c.target_system == self.cfg.system_id || c.target_system == 0 =>
+            {
+                let result = self.command(io, &c, now);
+                let ack = MavMessage::COMMAND_ACK(COMMAND_ACK_DATA {
+                    command: c.command,
+                    result,
+                    target_system: header.system_id as u8,
+                    target_component: header.component_id,
+                    ..Default::default()
+                });
+                self.send(io, &ack, mono_ns());
+                if c.command == MavCmd::MAV_CMD_REQUEST_MESSAGE
+                    && result == MavResult::MAV_RESULT_ACCEPTED
+                {
+                    let boot_ms = self.boot.boot_ns(now) / 1_000_000;
+                    self.emit_stream(io, c.param1 as u32, boot_ms, now);
+                }
+            }
+            _ => {}
+        }
+    }
+
+    fn command(&mut self, io: &LinkIo, c: &COMMAND_LONG_DATA, now: u64) -> MavResult {
+        let stream = |id: f32| STREAM_IDS.iter().position(|s| *s as f32 == id);
+        match c.command {
+            MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL => {
+                let Some(k) = stream(c.param1) else {
+                    return MavResult::MAV_RESULT_UNSUPPORTED;
+                };
+                let boot_ms = self.boot.boot_ns(now) / 1_000_000;
+                let p = if c.param2 < 0.0 {
+                    0
+                } else if c.param2 == 0.0 {
+                    self.configured_periods()[k]
+                } else {
+                    ((c.param2 / 1000.0).round() as u64).max(1)
+                };
+                self.streams[k] = (p, boot_ms + 1);
+                MavResult::MAV_RESULT_ACCEPTED
+            }
+            MavCmd::MAV_CMD_REQUEST_MESSAGE => match stream(c.param1) {
+                Some(_) => MavResult::MAV_RESULT_ACCEPTED,
+                None => MavResult::MAV_RESULT_UNSUPPORTED,
+            },
+            MavCmd::MAV_CMD_DO_SET_CAM_TRIGG_DIST => {
+                if c.param1 <= 0.0 {
+                    self.trigger = None;
+                } else {
+                    let dist = c.param1 as f64;
+                    let t = now.saturating_sub(self.shared.start_mono_ns) as f64 * 1e-9;
+                    let here = self.shared.traj.state(t).path_m;
+                    let t_next = self.shared.traj.time_at_path(t, here + dist);
+                    self.trigger = Some((dist, self.shared.start_mono_ns as f64 + t_next * 1e9));
+                    if c.param3 == 1.0 {
+                        self.capture(io, now, "trigger");
+                    }
+                }
+                MavResult::MAV_RESULT_ACCEPTED
+            }
+            MavCmd::MAV_CMD_DO_DIGICAM_CONTROL => {
+                if c.param5 == 1.0 {
+                    self.capture(io, now, "capture");
+                }
+                MavResult::MAV_RESULT_ACCEPTED
+            }
+            MavCmd::MAV_CMD_IMAGE_START_CAPTURE => {
+                self.capture(io, now, "capture");
+                MavResult::MAV_RESULT_ACCEPTED
+            }
+            _ => MavResult::MAV_RESULT_UNSUPPORTED,
+        }
+    }
+}

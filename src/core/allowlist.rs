@@ -1,0 +1,75 @@
+//! What alfd may put on the flight controller's link: camera, status and time messages, and
+//! COMMAND_LONG only for telemetry-rate and camera commands. Everything else is refused here,
+//! in one place, so no flight-control message or command can leave the daemon.
+
+/// Message ids alfd may send (MAVLink common dialect).
+pub const ALLOWED_MESSAGES: &[(u32, &str)] = &[
+    (0, "HEARTBEAT"),
+    (2, "SYSTEM_TIME"),
+    (76, "COMMAND_LONG"),
+    (77, "COMMAND_ACK"),
+    (111, "TIMESYNC"),
+    (112, "CAMERA_TRIGGER"),
+    (251, "NAMED_VALUE_FLOAT"),
+    (253, "STATUSTEXT"),
+    (259, "CAMERA_INFORMATION"),
+    (260, "CAMERA_SETTINGS"),
+    (262, "CAMERA_CAPTURE_STATUS"),
+    (263, "CAMERA_IMAGE_CAPTURED"),
+];
+
+/// Commands alfd may send inside COMMAND_LONG.
+pub const ALLOWED_COMMANDS: &[(u32, &str)] = &[
+    (203, "MAV_CMD_DO_DIGICAM_CONTROL"),
+    (206, "MAV_CMD_DO_SET_CAM_TRIGG_DIST"),
+    (511, "MAV_CMD_SET_MESSAGE_INTERVAL"),
+    (512, "MAV_CMD_REQUEST_MESSAGE"),
+    (2000, "MAV_CMD_IMAGE_START_CAPTURE"),
+    (2001, "MAV_CMD_IMAGE_STOP_CAPTURE"),
+];
+
+/// COMMAND_LONG's message id.
+pub const COMMAND_LONG_ID: u32 = 76;
+
+/// Why a message may not be sent.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Refusal {
+    /// The message id is not on the allow-list.
+    Message(u32),
+    /// A COMMAND_LONG carrying a command that is not on the allow-list.
+    Command(u32),
+}
+
+/// `Ok` if a message with id `msg_id` (and, for COMMAND_LONG, `command`) may be sent.
+pub fn may_send(msg_id: u32, command: Option<u32>) -> Result<(), Refusal> {
+    if !ALLOWED_MESSAGES.iter().any(|(id, _)| *id == msg_id) {
+        return Err(Refusal::Message(msg_id));
+    }
+    if msg_id == COMMAND_LONG_ID {
+        let cmd = command.unwrap_or(u32::MAX);
+        if !ALLOWED_COMMANDS.iter().any(|(id, _)| *id == cmd) {
+            return Err(Refusal::Command(cmd));
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn flight_control_is_refused() {
+        // SET_POSITION_TARGET_LOCAL_NED, MANUAL_CONTROL, COMMAND_INT, SET_MODE, MISSION_ITEM_INT.
+        for id in [84, 69, 75, 11, 73] {
+            assert_eq!(may_send(id, None), Err(Refusal::Message(id)));
+        }
+        // ARM/DISARM, NAV_LAND, DO_SET_MODE, NAV_TAKEOFF inside COMMAND_LONG.
+        for cmd in [400, 21, 176, 22] {
+            assert_eq!(may_send(76, Some(cmd)), Err(Refusal::Command(cmd)));
+        }
+        assert_eq!(may_send(76, None), Err(Refusal::Command(u32::MAX)));
+        assert_eq!(may_send(76, Some(511)), Ok(()));
+        assert_eq!(may_send(0, None), Ok(()));
+    }
+}

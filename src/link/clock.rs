@@ -1,0 +1,13 @@
+//! The companion's clock: CLOCK_MONOTONIC in nanoseconds, the clock V4L2 stamps frames with, so
+//! frames, telemetry (through TIMESYNC) and the simulator's truth all meet on one time line.
+
+/// CLOCK_MONOTONIC now, in nanoseconds.
+pub fn mono_ns() -> u64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: clock_gettime writes into the timespec we own; CLOCK_MONOTONIC always exists on Linux.
+    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
+    ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
+}

@@ -1,0 +1,295 @@
+//! The `[mavlink]` section: raw TOML (unknown keys refused) checked once into a typed
+//! `LinkConfig`; errors name the key (`mavlink.<key>`).
+
+use crate::core::geo::Geodetic;
+use serde::Deserialize;
+use std::time::Duration;
+
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{field}: {problem}")]
+pub struct LinkConfigError {
+    pub field: String,
+    pub problem: String,
+}
+
+fn bad(key: &str, problem: impl Into<String>) -> LinkConfigError {
+    LinkConfigError {
+        field: format!("mavlink.{key}"),
+        problem: problem.into(),
+    }
+}
+
+/// The section as written.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawLinkConfig {
+    pub address: String,
+    #[serde(default = "one")]
+    pub system_id: u8,
+    #[serde(default = "camera")]
+    pub component_id: u8,
+    #[serde(default = "autopilot_ids")]
+    pub accept_system_ids: Vec<u8>,
+    #[serde(default = "one")]
+    pub autopilot_component_id: u8,
+    #[serde(default = "two")]
+    pub mavlink_version: u8,
+    #[serde(default = "ten")]
+    pub position_hz: f64,
+    #[serde(default = "ten")]
+    pub attitude_hz: f64,
+    #[serde(default = "ten")]
+    pub timesync_hz: f64,
+    #[serde(default = "horizon")]
+    pub pose_horizon_ms: u64,
+    #[serde(default = "keep")]
+    pub pose_keep_ms: u64,
+    #[serde(default = "read_timeout")]
+    pub read_timeout_ms: u64,
+    #[serde(default = "silence")]
+    pub silence_reconnect_ms: u64,
+    #[serde(default = "initial")]
+    pub reconnect_initial_ms: u64,
+    #[serde(default = "max")]
+    pub reconnect_max_ms: u64,
+    pub home_lat_deg: Option<f64>,
+    pub home_lon_deg: Option<f64>,
+    pub home_alt_m: Option<f64>,
+    #[serde(default = "tolerance")]
+    pub glitch_tolerance_m: f64,
+    #[serde(default = "reanchor")]
+    pub glitch_reanchor_ms: u64,
+}
+
+fn one() -> u8 {
+    1
+}
+fn two() -> u8 {
+    2
+}
+fn camera() -> u8 {
+    100
+}
+fn autopilot_ids() -> Vec<u8> {
+    vec![1]
+}
+fn ten() -> f64 {
+    10.0
+}
+fn horizon() -> u64 {
+    200
+}
+fn keep() -> u64 {
+    5_000
+}
+fn read_timeout() -> u64 {
+    1_000
+}
+fn silence() -> u64 {
+    3_000
+}
+fn initial() -> u64 {
+    50
+}
+fn max() -> u64 {
+    500
+}
+fn tolerance() -> f64 {
+    2.0
+}
+fn reanchor() -> u64 {
+    10_000
+}
+
+/// The link's validated settings.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LinkConfig {
+    /// A rust-mavlink address: `serial:PATH:BAUD`, `udpin:`, `udpout:`, `tcpout:`, `tcpin:`.
+    pub address: String,
+    pub system_id: u8,
+    pub component_id: u8,
+    pub accept_system_ids: Vec<u8>,
+    pub autopilot_component_id: u8,
+    pub mavlink_version: u8,
+    pub position_hz: f64,
+    pub attitude_hz: f64,
+    pub timesync_hz: f64,
+    pub pose_horizon: Duration,
+    pub pose_keep: Duration,
+    pub read_timeout: Duration,
+    pub silence_reconnect: Duration,
+    pub reconnect_initial: Duration,
+    pub reconnect_max: Duration,
+    pub home: Option<Geodetic>,
+    pub glitch_tolerance_m: f64,
+    pub glitch_reanchor: Duration,
+}
+
+impl LinkConfig {
+    /// A config with every default for `address`.
+    pub fn for_address(address: &str) -> Self {
+        let raw: RawLinkConfig =
+            toml::from_str(&format!("address = {address:?}")).expect("defaults parse");
+        LinkConfig::try_from(raw).expect("defaults are valid")
+    }
+
+    /// Parse a document's `[mavlink]` table.
+    pub fn from_toml(text: &str) -> Result<Self, LinkConfigError> {
+        #[derive(Deserialize)]
+        struct Doc {
+            mavlink: RawLinkConfig,
+        }
+        let doc: Doc = toml::from_str(text).map_err(|e| LinkConfigError {
+            field: "mavlink".into(),
+            problem: e.to_string(),
+        })?;
+        LinkConfig::try_from(doc.mavlink)
+    }
+}
+
+fn rate(key: &str, hz: f64) -> Result<f64, LinkConfigError> {
+    if !(hz.is_finite() && hz > 0.0 && hz <= 1000.0) {
+        return Err(bad(key, format!("{hz}: must be in (0, 1000] Hz")));
+    }
+    Ok(hz)
+}
+
+fn ms(key: &str, v: u64, min: u64, max: u64) -> Result<Duration, LinkConfigError> {
+    if !(min..=max).contains(&v) {
+        return Err(bad(key, format!("{v}: must be between {min} and {max} ms")));
+    }
+    Ok(Duration::from_millis(v))
+}
+
+impl TryFrom<RawLinkConfig> for LinkConfig {
+    type Error = LinkConfigError;
+
+    fn try_from(r: RawLinkConfig) -> Result<Self, LinkConfigError> {
+        mavlink::ConnectionAddress::parse_address(&r.address).map_err(|e| {
+            bad(
+                "address",
+                format!(
+                    "`{}`: {e} (expected serial:PATH:BAUD, udpin:, udpout:, tcpout:)",
+                    r.address
+                ),
+            )
+        })?;
+        if r.system_id == 0 {
+            return Err(bad("system_id", "0 is the broadcast id"));
+        }
+        if r.component_id == 0 {
+            return Err(bad("component_id", "0 is the broadcast id"));
+        }
+        if r.accept_system_ids.is_empty() || r.accept_system_ids.contains(&0) {
+            return Err(bad(
+                "accept_system_ids",
+                "needs at least one id, none of them 0",
+            ));
+        }
+        if !matches!(r.mavlink_version, 1 | 2) {
+            return Err(bad(
+                "mavlink_version",
+                format!("{}: expected 1 or 2", r.mavlink_version),
+            ));
+        }
+        let home = match (r.home_lat_deg, r.home_lon_deg, r.home_alt_m) {
+            (None, None, None) => None,
+            (Some(lat), Some(lon), alt) => {
+                if !(-90.0..=90.0).contains(&lat) {
+                    return Err(bad("home_lat_deg", format!("{lat}: must be within ±90°")));
+                }
+                if !(-180.0..=180.0).contains(&lon) {
+                    return Err(bad("home_lon_deg", format!("{lon}: must be within ±180°")));
+                }
+                Some(Geodetic {
+                    lat_deg: lat,
+                    lon_deg: lon,
+                    alt_m: alt.unwrap_or(0.0),
+                })
+            }
+            _ => {
+                return Err(bad(
+                    "home_lat_deg",
+                    "home_lat_deg and home_lon_deg go together",
+                ))
+            }
+        };
+        if !(r.glitch_tolerance_m.is_finite() && r.glitch_tolerance_m > 0.0) {
+            return Err(bad(
+                "glitch_tolerance_m",
+                "must be a positive number of metres",
+            ));
+        }
+        let reconnect_initial = ms("reconnect_initial_ms", r.reconnect_initial_ms, 1, 60_000)?;
+        let reconnect_max = ms("reconnect_max_ms", r.reconnect_max_ms, 1, 60_000)?;
+        if reconnect_max < reconnect_initial {
+            return Err(bad(
+                "reconnect_max_ms",
+                "must be at least reconnect_initial_ms",
+            ));
+        }
+        Ok(LinkConfig {
+            address: r.address,
+            system_id: r.system_id,
+            component_id: r.component_id,
+            accept_system_ids: r.accept_system_ids,
+            autopilot_component_id: r.autopilot_component_id,
+            mavlink_version: r.mavlink_version,
+            position_hz: rate("position_hz", r.position_hz)?,
+            attitude_hz: rate("attitude_hz", r.attitude_hz)?,
+            timesync_hz: rate("timesync_hz", r.timesync_hz)?,
+            pose_horizon: ms("pose_horizon_ms", r.pose_horizon_ms, 0, 10_000)?,
+            pose_keep: ms("pose_keep_ms", r.pose_keep_ms, 100, 600_000)?,
+            read_timeout: ms("read_timeout_ms", r.read_timeout_ms, 10, 60_000)?,
+            silence_reconnect: ms("silence_reconnect_ms", r.silence_reconnect_ms, 100, 600_000)?,
+            reconnect_initial,
+            reconnect_max,
+            home,
+            glitch_tolerance_m: r.glitch_tolerance_m,
+            glitch_reanchor: ms("glitch_reanchor_ms", r.glitch_reanchor_ms, 0, 3_600_000)?,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn errors_name_the_key() {
+        let cases = [
+            ("address = \"carrier:pigeon\"", "mavlink.address"),
+            (
+                "address = \"serial:/dev/ttyS0:921600\"\nsystem_id = 0",
+                "mavlink.system_id",
+            ),
+            (
+                "address = \"udpin:0.0.0.0:14550\"\naccept_system_ids = []",
+                "mavlink.accept_system_ids",
+            ),
+            (
+                "address = \"udpin:0.0.0.0:14550\"\nposition_hz = 0",
+                "mavlink.position_hz",
+            ),
+            (
+                "address = \"udpin:0.0.0.0:14550\"\nreconnect_max_ms = 10",
+                "mavlink.reconnect_max_ms",
+            ),
+            (
+                "address = \"udpin:0.0.0.0:14550\"\nhome_lat_deg = 91\nhome_lon_deg = 0",
+                "mavlink.home_lat_deg",
+            ),
+            ("address = \"udpin:0.0.0.0:14550\"\nadress = 1", "mavlink"),
+        ];
+        for (body, field) in cases {
+            let e = LinkConfig::from_toml(&format!("[mavlink]\n{body}\n")).unwrap_err();
+            assert_eq!(e.field, field, "{body}: {e}");
+        }
+        let ok = LinkConfig::from_toml("[mavlink]\naddress = \"tcpout:127.0.0.1:5760\"\n").unwrap();
+        assert_eq!(
+            (ok.component_id, ok.system_id, ok.accept_system_ids.clone()),
+            (100, 1, vec![1])
+        );
+        assert_eq!(ok.reconnect_max, Duration::from_millis(500));
+    }
+}

@@ -1,0 +1,177 @@
+//! alfd's MAVLink link: one task owns the connection to the flight controller. It announces a
+//! camera component, requests telemetry rates, keeps time in sync and a pose buffer, reconnects
+//! with capped backoff, and sends only what the allow-list permits. Others talk to it through a
+//! `LinkHandle`: `watch` channels for the latest state and health, commands with replies.
+
+pub mod clock;
+pub mod config;
+mod state;
+mod task;
+
+pub use clock::mono_ns;
+pub use config::{LinkConfig, LinkConfigError, RawLinkConfig};
+pub use state::PoseQueryError;
+pub use task::{new, Link, LinkError};
+
+use crate::core::geo::Geodetic;
+use crate::core::pose::Pose;
+use mavlink::dialects::common::MavMessage;
+use tokio::sync::{mpsc, oneshot, watch};
+
+/// The latest vehicle state, from the newest accepted position and attitude.
+#[derive(Clone, Debug, PartialEq)]
+pub struct VehicleState {
+    pub time_boot_ms: u32,
+    /// The sample's instant on the companion's monotonic clock, once time is in sync.
+    pub mono_ns: Option<u64>,
+    pub position: Geodetic,
+    /// Local NED around `home`.
+    pub pos_ned_m: [f64; 3],
+    pub vel_ned_mps: [f64; 3],
+    pub home: Geodetic,
+    /// Body to NED (w, x, y, z).
+    pub q: [f64; 4],
+    pub rpy_deg: [f64; 3],
+    pub gps_fix: u8,
+    pub armed: bool,
+}
+
+/// How the link is doing: counters only grow; flags say what holds now.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct LinkHealth {
+    pub connected: bool,
+    /// Successful connections (the first one included).
+    pub connects: u32,
+    /// Connection attempts that failed, and the last backoff waited (ms).
+    pub connect_failures: u32,
+    pub last_backoff_ms: u64,
+    pub messages_rx: u64,
+    pub parse_errors: u64,
+    /// Frames missing by sequence number (dropped or failing CRC).
+    pub seq_gaps: u64,
+    pub foreign_ignored: u64,
+    pub autopilot_heartbeats: u64,
+    pub last_rx_mono_ns: u64,
+    pub last_position_rx_mono_ns: u64,
+    pub positions_accepted: u64,
+    pub rejected_time: u64,
+    pub rejected_position: u64,
+    /// Positions not newer than the newest kept (never expected on an ordered link).
+    pub out_of_order: u64,
+    pub rejected_attitude: u64,
+    pub synced: bool,
+    pub synced_at_mono_ns: u64,
+    pub offset_ns: i64,
+    pub drift_ppm: f64,
+    pub rtt_min_ns: u64,
+    pub timesync_resets: u32,
+    pub timesync_outliers: u64,
+    pub timesync_discarded: u64,
+    pub reboots: u32,
+    pub glitch_active: bool,
+    pub glitches: u64,
+    pub glitch_rejected: u64,
+    pub reanchors: u32,
+    pub rates_acked: bool,
+    pub sent: u64,
+    pub refused: u64,
+    pub events_dropped: u64,
+}
+
+/// Things the rest of the daemon may want to act on.
+#[derive(Clone, Debug, PartialEq)]
+pub enum LinkEvent {
+    Synced,
+    AutopilotRebooted,
+    GpsGlitch {
+        jump_m: f64,
+    },
+    GpsReanchored {
+        jump_m: f64,
+    },
+    /// The autopilot's own camera trigger fired.
+    CameraTrigger {
+        seq: u32,
+        time_boot_us: u64,
+    },
+    /// A COMMAND_LONG addressed to us from an accepted system.
+    Command {
+        system_id: u8,
+        component_id: u8,
+        command: u32,
+        params: [f32; 7],
+    },
+}
+
+/// Why a message was not sent.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum SendError {
+    #[error("not on the send allow-list: {0:?}")]
+    NotAllowed(crate::core::allowlist::Refusal),
+    #[error("message id {0} cannot be sent over MAVLink 1")]
+    NotInV1(u32),
+    #[error("not connected")]
+    NotConnected,
+    #[error("write failed: {0}")]
+    Write(String),
+    #[error("the link task has stopped")]
+    Stopped,
+}
+
+pub(crate) enum Command {
+    Send(Box<MavMessage>, oneshot::Sender<Result<(), SendError>>),
+    PoseAt(u64, oneshot::Sender<Result<Pose, PoseQueryError>>),
+    BootNsAt(u64, oneshot::Sender<Option<u64>>),
+}
+
+/// What the rest of the daemon holds to use the link. Cheap to clone.
+#[derive(Clone)]
+pub struct LinkHandle {
+    state: watch::Receiver<Option<VehicleState>>,
+    health: watch::Receiver<LinkHealth>,
+    commands: mpsc::Sender<Command>,
+}
+
+impl LinkHandle {
+    pub fn state(&self) -> watch::Receiver<Option<VehicleState>> {
+        self.state.clone()
+    }
+
+    pub fn health(&self) -> watch::Receiver<LinkHealth> {
+        self.health.clone()
+    }
+
+    /// Send a message (checked against the allow-list first, then the protocol version).
+    pub async fn send(&self, msg: MavMessage) -> Result<(), SendError> {
+        let (tx, rx) = oneshot::channel();
+        self.commands
+            .send(Command::Send(Box::new(msg), tx))
+            .await
+            .map_err(|_| SendError::Stopped)?;
+        rx.await.map_err(|_| SendError::Stopped)?
+    }
+
+    /// The pose at an instant of this machine's CLOCK_MONOTONIC (e.g. a frame's timestamp).
+    pub async fn pose_at_mono_ns(&self, mono_ns: u64) -> Result<Pose, PoseQueryError> {
+        let (tx, rx) = oneshot::channel();
+        if self
+            .commands
+            .send(Command::PoseAt(mono_ns, tx))
+            .await
+            .is_err()
+        {
+            return Err(PoseQueryError::NotSynced);
+        }
+        rx.await.unwrap_or(Err(PoseQueryError::NotSynced))
+    }
+
+    /// The autopilot's boot time (ns) at a monotonic instant, by the current TIMESYNC estimate.
+    pub async fn boot_ns_at_mono_ns(&self, mono_ns: u64) -> Option<u64> {
+        let (tx, rx) = oneshot::channel();
+        self.commands
+            .send(Command::BootNsAt(mono_ns, tx))
+            .await
+            .ok()?;
+        rx.await.ok().flatten()
+    }
+}

@@ -1,0 +1,419 @@
+//! The link's bookkeeping, with no I/O: digests each incoming message (at its receive instant)
+//! into the TIMESYNC filter, the glitch gate, the pose buffer, the published vehicle state and
+//! the health counters, and says what to send back.
+
+use super::config::LinkConfig;
+use super::{LinkEvent, LinkHealth, VehicleState};
+use crate::core::geo::{Geodetic, LocalFrame};
+use crate::core::glitch::{GlitchConfig, GlitchGate, Verdict};
+use crate::core::pose::{
+    AttitudeSample, Pose, PoseBuffer, PoseBufferConfig, PoseError, PositionSample, PushError,
+};
+use crate::core::timesync::{SampleOutcome, TimeCheck, TimeSync, TimeSyncConfig};
+use glam::{DQuat, DVec3};
+use mavlink::dialects::common::*;
+use mavlink::MavHeader;
+use std::collections::{HashMap, VecDeque};
+
+/// Why the link cannot give a pose at an instant.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum PoseQueryError {
+    #[error("no time synchronisation with the autopilot yet")]
+    NotSynced,
+    #[error(transparent)]
+    Pose(#[from] PoseError),
+}
+
+/// What digesting a message asks the task to do.
+#[derive(Debug, PartialEq)]
+pub enum Reaction {
+    Reply(Box<MavMessage>),
+    Event(LinkEvent),
+    /// (Re)request the telemetry rates.
+    RequestRates,
+    StateChanged,
+}
+
+pub struct Tracker {
+    cfg: LinkConfig,
+    pub sync: TimeSync,
+    poses: PoseBuffer,
+    gate: GlitchGate,
+    frame: Option<LocalFrame>,
+    pub health: LinkHealth,
+    pub state: Option<VehicleState>,
+    /// The autopilot we follow: (system id, component id).
+    pub autopilot: Option<(u8, u8)>,
+    seqs: HashMap<(u32, u8), u8>,
+    /// TIMESYNC requests in flight (their ts1 = our send instant).
+    outstanding: VecDeque<u64>,
+    /// SET_MESSAGE_INTERVAL requests not yet acknowledged, oldest first.
+    pub pending_rates: VecDeque<u32>,
+}
+
+impl Tracker {
+    pub fn new(cfg: LinkConfig) -> Self {
+        let poses = PoseBuffer::new(PoseBufferConfig {
+            horizon_ns: cfg.pose_horizon.as_nanos() as u64,
+            keep_ns: cfg.pose_keep.as_nanos() as u64,
+            max_samples: 4096,
+        });
+        let gate = GlitchGate::new(GlitchConfig {
+            tolerance_m: cfg.glitch_tolerance_m,
+            reanchor_after_ns: cfg.glitch_reanchor.as_nanos() as u64,
+            ..GlitchConfig::default()
+        });
+        Tracker {
+            frame: cfg.home.map(LocalFrame::new),
+            sync: TimeSync::new(TimeSyncConfig::default()),
+            poses,
+            gate,
+            health: LinkHealth::default(),
+            state: None,
+            autopilot: None,
+            seqs: HashMap::new(),
+            outstanding: VecDeque::new(),
+            pending_rates: VecDeque::new(),
+            cfg,
+        }
+    }
+
+    /// A TIMESYNC request to send now (`now_ns` doubles as its ts1).
+    pub fn timesync_request(&mut self, now_ns: u64) -> MavMessage {
+        if self.outstanding.len() >= 16 {
+            self.outstanding.pop_front();
+        }
+        self.outstanding.push_back(now_ns);
+        let (target_system, target_component) = self.autopilot.unwrap_or((0, 0));
+        MavMessage::TIMESYNC(TIMESYNC_DATA {
+            tc1: 0,
+            ts1: now_ns as i64,
+            target_system,
+            target_component,
+        })
+    }
+
+    /// The pose at a local monotonic instant.
+    pub fn pose_at(&self, mono_ns: u64) -> Result<Pose, PoseQueryError> {
+        let boot_ns = self
+            .sync
+            .local_to_remote(mono_ns)
+            .ok_or(PoseQueryError::NotSynced)?;
+        Ok(self.poses.at(boot_ns)?)
+    }
+
+    fn time_ok(&mut self, boot_ms: u32, rx_ns: u64, out: &mut Vec<Reaction>) -> bool {
+        match self
+            .sync
+            .check_remote_time(boot_ms as u64 * 1_000_000, rx_ns)
+        {
+            TimeCheck::Plausible => true,
+            TimeCheck::Implausible => {
+                self.health.rejected_time += 1;
+                false
+            }
+            TimeCheck::Rebooted => {
+                self.on_reboot(out);
+                true
+            }
+        }
+    }
+
+    fn on_reboot(&mut self, out: &mut Vec<Reaction>) {
+        self.poses.clear();
+        self.gate.reset();
+        self.outstanding.clear();
+        self.health.reboots += 1;
+        self.health.synced = false;
+        out.push(Reaction::Event(LinkEvent::AutopilotRebooted));
+        out.push(Reaction::RequestRates);
+    }
+
+    /// Digest one message received at `rx_ns`.
+    pub fn on_message(&mut self, h: &MavHeader, msg: &MavMessage, rx_ns: u64) -> Vec<Reaction> {
+        let mut out = Vec::new();
+        let sysid = h.system_id;
+        if !self
+            .cfg
+            .accept_system_ids
+            .iter()
+            .any(|id| u32::from(*id) == sysid)
+        {
+            self.health.foreign_ignored += 1;
+            return out;
+        }
+        self.health.messages_rx += 1;
+        self.health.last_rx_mono_ns = rx_ns;
+        if let Some(last) = self.seqs.insert((sysid, h.component_id), h.sequence) {
+            self.health.seq_gaps += u64::from(h.sequence.wrapping_sub(last).wrapping_sub(1));
+        }
+        let from_autopilot = h.component_id == self.cfg.autopilot_component_id;
+        match msg {
+            MavMessage::HEARTBEAT(hb) if from_autopilot => {
+                if self.autopilot.is_none() {
+                    self.autopilot = Some((sysid as u8, h.component_id));
+                    out.push(Reaction::RequestRates);
+                }
+                self.health.autopilot_heartbeats += 1;
+                let armed = hb
+                    .base_mode
+                    .contains(MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED);
+                if let Some(s) = self.state.as_mut() {
+                    s.armed = armed;
+                }
+            }
+            MavMessage::TIMESYNC(t) if t.tc1 == 0 => {
+                out.push(Reaction::Reply(Box::new(MavMessage::TIMESYNC(
+                    TIMESYNC_DATA {
+                        tc1: rx_ns as i64,
+                        ts1: t.ts1,
+                        target_system: sysid as u8,
+                        target_component: h.component_id,
+                    },
+                ))));
+            }
+            MavMessage::TIMESYNC(t) => {
+                let ts1 = t.ts1 as u64;
+                let Some(i) = self.outstanding.iter().position(|s| *s == ts1) else {
+                    return out;
+                };
+                self.outstanding.remove(i);
+                let was_synced = self.sync.is_synced();
+                let resets = self.sync.resets();
+                match self.sync.on_exchange(ts1, t.tc1.max(0) as u64, rx_ns) {
+                    SampleOutcome::Outlier => self.health.timesync_outliers += 1,
+                    SampleOutcome::Discarded => self.health.timesync_discarded += 1,
+                    SampleOutcome::Accepted | SampleOutcome::Reset => {}
+                }
+                if self.sync.resets() > resets && self.health.synced {
+                    self.on_reboot(&mut out);
+                }
+                self.health.synced = self.sync.is_synced();
+                if let Some(f) = self.sync.fit() {
+                    self.health.offset_ns = f.offset_ns as i64;
+                    self.health.drift_ppm = f.drift * 1e6;
+                    self.health.rtt_min_ns = f.rtt_min_ns;
+                }
+                self.health.timesync_resets = self.sync.resets();
+                if !was_synced && self.health.synced {
+                    self.health.synced_at_mono_ns = rx_ns;
+                    out.push(Reaction::Event(LinkEvent::Synced));
+                }
+            }
+            MavMessage::SYSTEM_TIME(t) if from_autopilot => {
+                self.time_ok(t.time_boot_ms, rx_ns, &mut out);
+            }
+            MavMessage::GLOBAL_POSITION_INT(p) if from_autopilot => {
+                self.on_position(p, rx_ns, &mut out)
+            }
+            MavMessage::ATTITUDE_QUATERNION(a) if from_autopilot => {
+                if !self.time_ok(a.time_boot_ms, rx_ns, &mut out) {
+                    return out;
+                }
+                let q = DQuat::from_xyzw(a.q2 as f64, a.q3 as f64, a.q4 as f64, a.q1 as f64);
+                let rates = DVec3::new(a.rollspeed as f64, a.pitchspeed as f64, a.yawspeed as f64);
+                self.on_attitude(a.time_boot_ms, q, rates, &mut out);
+            }
+            MavMessage::ATTITUDE(a) if from_autopilot => {
+                if !self.time_ok(a.time_boot_ms, rx_ns, &mut out) {
+                    return out;
+                }
+                let q = DQuat::from_euler(
+                    glam::EulerRot::ZYX,
+                    a.yaw as f64,
+                    a.pitch as f64,
+                    a.roll as f64,
+                );
+                let rates = DVec3::new(a.rollspeed as f64, a.pitchspeed as f64, a.yawspeed as f64);
+                self.on_attitude(a.time_boot_ms, q, rates, &mut out);
+            }
+            MavMessage::GPS_RAW_INT(g) if from_autopilot => {
+                if let Some(s) = self.state.as_mut() {
+                    s.gps_fix = g.fix_type as u8;
+                }
+            }
+            MavMessage::COMMAND_ACK(a)
+                if a.command == MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL
+                    && a.result == MavResult::MAV_RESULT_ACCEPTED =>
+            {
+                self.pending_rates.pop_front();
+                self.health.rates_acked = self.pending_rates.is_empty();
+            }
+            MavMessage::CAMERA_TRIGGER(c) => {
+                out.push(Reaction::Event(LinkEvent::CameraTrigger {
+                    seq: c.seq,
+                    time_boot_us: c.time_usec,
+                }));
+            }
+            MavMessage::COMMAND_LONG(c)
+                if c.target_system == self.cfg.system_id
+                    && (c.target_component == self.cfg.component_id || c.target_component == 0) =>
+            {
+                out.push(Reaction::Event(LinkEvent::Command {
+                    system_id: sysid as u8,
+                    component_id: h.component_id,
+                    command: c.command as u32,
+                    params: [
+                        c.param1, c.param2, c.param3, c.param4, c.param5, c.param6, c.param7,
+                    ],
+                }));
+            }
+            _ => {}
+        }
+        out
+    }
+
+    fn on_attitude(&mut self, boot_ms: u32, q: DQuat, rates: DVec3, out: &mut Vec<Reaction>) {
+        let s = AttitudeSample {
+            time_ns: boot_ms as u64 * 1_000_000,
+            q,
+            rates_rps: rates,
+        };
+        if self.poses.push_attitude(s).is_err() {
+            self.health.rejected_attitude += 1;
+            return;
+        }
+        if let Some(st) = self.state.as_mut() {
+            let q = s.q.normalize();
+            st.q = [q.w, q.x, q.y, q.z];
+            let (yaw, pitch, roll) = q.to_euler(glam::EulerRot::ZYX);
+            st.rpy_deg = [roll.to_degrees(), pitch.to_degrees(), yaw.to_degrees()];
+            out.push(Reaction::StateChanged);
+        }
+    }
+
+    fn on_position(&mut self, p: &GLOBAL_POSITION_INT_DATA, rx_ns: u64, out: &mut Vec<Reaction>) {
+        if !self.time_ok(p.time_boot_ms, rx_ns, out) {
+            return;
+        }
+        let g = Geodetic {
+            lat_deg: p.lat as f64 * 1e-7,
+            lon_deg: p.lon as f64 * 1e-7,
+            alt_m: p.alt as f64 * 1e-3,
+        };
+        if !(-90.0..=90.0).contains(&g.lat_deg) || !(-180.0..=180.0).contains(&g.lon_deg) {
+            self.health.rejected_position += 1;
+            return;
+        }
+        let frame = *self.frame.get_or_insert_with(|| LocalFrame::new(g));
+        let pos = DVec3::from_array(frame.to_ned(g));
+        let vel = DVec3::new(p.vx as f64, p.vy as f64, p.vz as f64) * 0.01;
+        let time_ns = p.time_boot_ms as u64 * 1_000_000;
+        match self.gate.check(time_ns, pos, vel) {
+            Verdict::Accept => {}
+            Verdict::Glitch { jump_m } => {
+                self.health.glitch_rejected += 1;
+                if !self.health.glitch_active {
+                    self.health.glitch_active = true;
+                    self.health.glitches += 1;
+                    out.push(Reaction::Event(LinkEvent::GpsGlitch { jump_m }));
+                }
+                return;
+            }
+            Verdict::Reanchored { jump_m } => {
+                self.health.reanchors += 1;
+                out.push(Reaction::Event(LinkEvent::GpsReanchored { jump_m }));
+            }
+        }
+        self.health.glitch_active = false;
+        let sample = PositionSample {
+            time_ns,
+            pos_ned_m: pos,
+            vel_ned_mps: vel,
+        };
+        match self.poses.push_position(sample) {
+            Ok(()) => {}
+            Err(PushError::OutOfOrder) => {
+                self.health.out_of_order += 1;
+                return;
+            }
+            Err(PushError::Invalid) => {
+                self.health.rejected_position += 1;
+                return;
+            }
+        }
+        self.health.positions_accepted += 1;
+        self.health.last_position_rx_mono_ns = rx_ns;
+        let mono_ns = self.sync.remote_to_local(time_ns);
+        let prev = self.state.take();
+        self.state = Some(VehicleState {
+            time_boot_ms: p.time_boot_ms,
+            mono_ns,
+            position: g,
+            pos_ned_m: pos.to_array(),
+            vel_ned_mps: vel.to_array(),
+            home: frame.home(),
+            q: prev.as_ref().map_or([1.0, 0.0, 0.0, 0.0], |s| s.q),
+            rpy_deg: prev.as_ref().map_or([0.0; 3], |s| s.rpy_deg),
+            gps_fix: prev.as_ref().map_or(0, |s| s.gps_fix),
+            armed: prev.as_ref().is_some_and(|s| s.armed),
+        });
+        out.push(Reaction::StateChanged);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn command(from: u32) -> (MavHeader, MavMessage) {
+        let h = MavHeader {
+            system_id: from,
+            component_id: 190,
+            sequence: 0,
+        };
+        let m = MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
+            command: MavCmd::MAV_CMD_IMAGE_START_CAPTURE,
+            target_system: 1,
+            target_component: 100,
+            ..Default::default()
+        });
+        (h, m)
+    }
+
+    #[test]
+    fn commands_only_from_accepted_systems() {
+        let mut t = Tracker::new(LinkConfig::for_address("udpin:127.0.0.1:0"));
+        let (h, m) = command(1);
+        let got = t.on_message(&h, &m, 1_000);
+        assert!(matches!(
+            got.as_slice(),
+            [Reaction::Event(LinkEvent::Command {
+                system_id: 1,
+                command: 2000,
+                ..
+            })]
+        ));
+        let (h, m) = command(255);
+        assert!(t.on_message(&h, &m, 2_000).is_empty());
+        assert_eq!(t.health.foreign_ignored, 1);
+    }
+
+    #[test]
+    fn timesync_requests_from_the_autopilot_are_answered() {
+        let mut t = Tracker::new(LinkConfig::for_address("udpin:127.0.0.1:0"));
+        let h = MavHeader {
+            system_id: 1,
+            component_id: 1,
+            sequence: 0,
+        };
+        let m = MavMessage::TIMESYNC(TIMESYNC_DATA {
+            tc1: 0,
+            ts1: 77,
+            target_system: 0,
+            target_component: 0,
+        });
+        let got = t.on_message(&h, &m, 5_000);
+        let [Reaction::Reply(r)] = got.as_slice() else {
+            panic!("{got:?}")
+        };
+        assert!(matches!(
+            **r,
+            MavMessage::TIMESYNC(TIMESYNC_DATA {
+                tc1: 5_000,
+                ts1: 77,
+                ..
+            })
+        ));
+    }
+}

@@ -1,0 +1,352 @@
+//! The link task: connect (capped backoff between attempts), then one loop selecting on received
+//! messages, commands, the heartbeat and TIMESYNC ticks, and shutdown. A reader task per
+//! connection does the reads, each wrapped in a timeout; every send goes through `send_checked`,
+//! the one place the allow-list is enforced.
+
+use super::clock::mono_ns;
+use super::config::LinkConfig;
+use super::state::{Reaction, Tracker};
+use super::{Command, LinkEvent, LinkHandle, LinkHealth, SendError, VehicleState};
+use crate::core::allowlist;
+use crate::core::backoff::reconnect_delay_ms;
+use mavlink::dialects::common::*;
+use mavlink::error::MessageReadError;
+use mavlink::{AsyncConnection, AsyncMavConnection, MavHeader, MavlinkVersion, Message};
+use std::future::Future;
+use std::sync::Arc;
+use std::time::Duration;
+use tokio::sync::{mpsc, watch};
+use tokio::time::{sleep_until, timeout, Instant};
+
+type Conn = Arc<AsyncConnection<MavMessage>>;
+
+const OPEN_TIMEOUT: Duration = Duration::from_secs(2);
+const WRITE_TIMEOUT: Duration = Duration::from_secs(1);
+const PUBLISH_EVERY: Duration = Duration::from_millis(50);
+const UNSYNCED_TIMESYNC_EVERY: Duration = Duration::from_millis(100);
+const RATE_RETRIES: u32 = 10;
+
+/// Failures that stop the link (everything else is retried).
+#[derive(Debug, thiserror::Error)]
+pub enum LinkError {
+    #[error("mavlink.address `{address}`: {reason}")]
+    Address { address: String, reason: String },
+}
+
+enum Rx {
+    Msg(MavHeader, Box<MavMessage>, u64),
+    ParseError,
+    Closed,
+}
+
+/// The link task, before it runs.
+pub struct Link {
+    cfg: LinkConfig,
+    tracker: Tracker,
+    state_tx: watch::Sender<Option<VehicleState>>,
+    health_tx: watch::Sender<LinkHealth>,
+    commands: mpsc::Receiver<Command>,
+    events: mpsc::Sender<LinkEvent>,
+    rate_tries: u32,
+}
+
+/// Build the link: the task to run, the handle for the rest of the daemon, and its events.
+pub fn new(cfg: LinkConfig) -> (Link, LinkHandle, mpsc::Receiver<LinkEvent>) {
+    let (state_tx, state) = watch::channel(None);
+    let (health_tx, health) = watch::channel(LinkHealth::default());
+    let (cmd_tx, commands) = mpsc::channel(64);
+    let (events, events_rx) = mpsc::channel(256);
+    let link = Link {
+        tracker: Tracker::new(cfg.clone()),
+        cfg,
+        state_tx,
+        health_tx,
+        commands,
+        events,
+        rate_tries: 0,
+    };
+    (
+        link,
+        LinkHandle {
+            state,
+            health,
+            commands: cmd_tx,
+        },
+        events_rx,
+    )
+}
+
+async fn read_loop(conn: Conn, tx: mpsc::Sender<Rx>, read_timeout: Duration) {
+    loop {
+        let rx = match timeout(read_timeout, conn.try_recv()).await {
+            Err(_) => continue,
+            Ok(Ok((h, m))) => Rx::Msg(h, Box::new(m), mono_ns()),
+            Ok(Err(MessageReadError::Parse(_))) => Rx::ParseError,
+            Ok(Err(MessageReadError::Io(_))) => Rx::Closed,
+        };
+        let closed = matches!(rx, Rx::Closed);
+        if tx.send(rx).await.is_err() || closed {
+            return;
+        }
+    }
+}
+
+impl Link {
+    /// Run until `shutdown` resolves.
+    pub async fn run(mut self, shutdown: impl Future<Output = ()>) -> Result<(), LinkError> {
+        if let Err(e) = mavlink::ConnectionAddress::parse_address(&self.cfg.address) {
+            return Err(LinkError::Address {
+                address: self.cfg.address.clone(),
+                reason: e.to_string(),
+            });
+        }
+        tokio::pin!(shutdown);
+        let mut attempt = 0u32;
+        loop {
+            let connected = tokio::select! {
+                r = timeout(OPEN_TIMEOUT, mavlink::connect_async::<MavMessage>(&self.cfg.address)) => r,
+                _ = &mut shutdown => return Ok(()),
+            };
+            match connected {
+                Ok(Ok(mut conn)) => {
+                    attempt = 0;
+                    conn.set_allow_recv_any_version(true);
+                    conn.set_protocol_version(if self.cfg.mavlink_version == 1 {
+                        MavlinkVersion::V1
+                    } else {
+                        MavlinkVersion::V2
+                    });
+                    self.tracker.health.connects += 1;
+                    self.tracker.health.connected = true;
+                    if self.serve_connection(Arc::new(conn), &mut shutdown).await {
+                        return Ok(());
+                    }
+                    self.tracker.health.connected = false;
+                    self.publish_health();
+                }
+                Ok(Err(_)) | Err(_) => {
+                    self.tracker.health.connect_failures += 1;
+                    let initial = self.cfg.reconnect_initial.as_millis() as u64;
+                    let max = self.cfg.reconnect_max.as_millis() as u64;
+                    let wait = reconnect_delay_ms(attempt, initial, max);
+                    attempt = attempt.saturating_add(1);
+                    self.tracker.health.last_backoff_ms = wait;
+                    self.publish_health();
+                    if self
+                        .idle_until(Instant::now() + Duration::from_millis(wait), &mut shutdown)
+                        .await
+                    {
+                        return Ok(());
+                    }
+                }
+            }
+        }
+    }
+
+    /// Serve commands (without a connection) until `deadline`; true if shut down.
+    async fn idle_until<F: Future<Output = ()>>(
+        &mut self,
+        deadline: Instant,
+        shutdown: &mut std::pin::Pin<&mut F>,
+    ) -> bool {
+        loop {
+            tokio::select! {
+                _ = sleep_until(deadline) => return false,
+                _ = shutdown.as_mut() => return true,
+                Some(c) = self.commands.recv() => self.serve(c, None).await,
+            }
+        }
+    }
+
+    /// One connection's life; true if shut down, false if the connection was lost.
+    async fn serve_connection<F: Future<Output = ()>>(
+        &mut self,
+        conn: Conn,
+        shutdown: &mut std::pin::Pin<&mut F>,
+    ) -> bool {
+        let (rx_tx, mut rx) = mpsc::channel(256);
+        let reader = tokio::spawn(read_loop(conn.clone(), rx_tx, self.cfg.read_timeout));
+        let _abort = AbortOnDrop(reader);
+        self.publish_health();
+        self.heartbeat(&conn).await;
+        if self.tracker.autopilot.is_some() {
+            self.request_rates(&conn).await;
+        }
+        let connected_at = mono_ns();
+        let mut heartbeat = tokio::time::interval(Duration::from_secs(1));
+        heartbeat.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        let mut publish = tokio::time::interval(PUBLISH_EVERY);
+        let mut next_sync = Instant::now();
+        loop {
+            tokio::select! {
+                _ = shutdown.as_mut() => {
+                    self.publish_health();
+                    return true;
+                }
+                r = rx.recv() => match r {
+                    Some(Rx::Msg(h, m, t)) => self.on_message(&conn, &h, &m, t).await,
+                    Some(Rx::ParseError) => self.tracker.health.parse_errors += 1,
+                    Some(Rx::Closed) | None => return false,
+                },
+                Some(c) = self.commands.recv() => self.serve(c, Some(&conn)).await,
+                _ = heartbeat.tick() => {
+                    self.heartbeat(&conn).await;
+                    if !self.tracker.pending_rates.is_empty() && self.rate_tries < RATE_RETRIES {
+                        self.rate_tries += 1;
+                        self.send_rate_requests(&conn).await;
+                    }
+                }
+                _ = sleep_until(next_sync) => {
+                    let msg = self.tracker.timesync_request(mono_ns());
+                    let _ = self.send_checked(Some(&conn), &msg).await;
+                    let every = if self.tracker.sync.is_synced() {
+                        Duration::from_secs_f64(1.0 / self.cfg.timesync_hz)
+                    } else {
+                        UNSYNCED_TIMESYNC_EVERY
+                    };
+                    next_sync = Instant::now() + every;
+                }
+                _ = publish.tick() => {
+                    self.publish_health();
+                    let last = self.tracker.health.last_rx_mono_ns.max(connected_at);
+                    if mono_ns().saturating_sub(last) > self.cfg.silence_reconnect.as_nanos() as u64 {
+                        return false;
+                    }
+                }
+            }
+        }
+    }
+
+    async fn on_message(&mut self, conn: &Conn, h: &MavHeader, m: &MavMessage, rx_ns: u64) {
+        let mut publish = false;
+        for r in self.tracker.on_message(h, m, rx_ns) {
+            match r {
+                Reaction::Reply(msg) => {
+                    let _ = self.send_checked(Some(conn), &msg).await;
+                }
+                Reaction::Event(e) => {
+                    publish = true;
+                    if self.events.try_send(e).is_err() {
+                        self.tracker.health.events_dropped += 1;
+                    }
+                }
+                Reaction::RequestRates => self.request_rates(conn).await,
+                Reaction::StateChanged => {
+                    self.state_tx.send_replace(self.tracker.state.clone());
+                }
+            }
+        }
+        if publish {
+            self.publish_health();
+        }
+    }
+
+    async fn serve(&mut self, c: Command, conn: Option<&Conn>) {
+        match c {
+            Command::Send(msg, reply) => {
+                let r = self.send_checked(conn, &msg).await;
+                let _ = reply.send(r);
+            }
+            Command::PoseAt(t, reply) => {
+                let _ = reply.send(self.tracker.pose_at(t));
+            }
+            Command::BootNsAt(t, reply) => {
+                let _ = reply.send(self.tracker.sync.local_to_remote(t));
+            }
+        }
+    }
+
+    fn publish_health(&self) {
+        let h = &self.tracker.health;
+        self.health_tx.send_if_modified(|cur| {
+            if cur != h {
+                *cur = h.clone();
+                true
+            } else {
+                false
+            }
+        });
+    }
+
+    async fn heartbeat(&mut self, conn: &Conn) {
+        let hb = MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+            custom_mode: 0,
+            mavtype: MavType::MAV_TYPE_CAMERA,
+            autopilot: MavAutopilot::MAV_AUTOPILOT_INVALID,
+            base_mode: MavModeFlag::empty(),
+            system_status: MavState::MAV_STATE_ACTIVE,
+            mavlink_version: 3,
+        });
+        let _ = self.send_checked(Some(conn), &hb).await;
+    }
+
+    async fn request_rates(&mut self, conn: &Conn) {
+        self.tracker.pending_rates = [33, 31].into();
+        self.tracker.health.rates_acked = false;
+        self.rate_tries = 0;
+        self.send_rate_requests(conn).await;
+    }
+
+    async fn send_rate_requests(&mut self, conn: &Conn) {
+        let (target_system, target_component) = self.tracker.autopilot.unwrap_or((0, 0));
+        let pending: Vec<u32> = self.tracker.pending_rates.iter().copied().collect();
+        for id in pending {
+            let hz = if id == 33 {
+                self.cfg.position_hz
+            } else {
+                self.cfg.attitude_hz
+            };
+            let msg = MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
+                command: MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL,
+                param1: id as f32,
+                param2: (1e6 / hz) as f32,
+                target_system,
+                target_component,
+                ..Default::default()
+            });
+            let _ = self.send_checked(Some(conn), &msg).await;
+        }
+    }
+
+    /// The only way out: allow-list, then protocol version, then the wire.
+    async fn send_checked(
+        &mut self,
+        conn: Option<&Conn>,
+        msg: &MavMessage,
+    ) -> Result<(), SendError> {
+        let id = msg.message_id();
+        let command = match msg {
+            MavMessage::COMMAND_LONG(c) => Some(c.command as u32),
+            _ => None,
+        };
+        if let Err(r) = allowlist::may_send(id, command) {
+            self.tracker.health.refused += 1;
+            return Err(SendError::NotAllowed(r));
+        }
+        if self.cfg.mavlink_version == 1 && id > 255 {
+            return Err(SendError::NotInV1(id));
+        }
+        let conn = conn.ok_or(SendError::NotConnected)?;
+        let header = MavHeader {
+            system_id: self.cfg.system_id.into(),
+            component_id: self.cfg.component_id,
+            sequence: 0,
+        };
+        match timeout(WRITE_TIMEOUT, conn.send(&header, msg)).await {
+            Ok(Ok(_)) => {
+                self.tracker.health.sent += 1;
+                Ok(())
+            }
+            Ok(Err(e)) => Err(SendError::Write(e.to_string())),
+            Err(_) => Err(SendError::Write("timed out".into())),
+        }
+    }
+}
+
+struct AbortOnDrop(tokio::task::JoinHandle<()>);
+
+impl Drop for AbortOnDrop {
+    fn drop(&mut self) {
+        self.0.abort();
+    }
+}
