@@ -332,6 +332,21 @@ pub fn render(scene: &Scene, camera: &Camera, opts: &RenderOptions) -> Frame {
     }
 }
 
+/// Depth only (metres along the optical axis at each pixel centre, `+inf` for
+/// sky): what a depth camera sees, without the cost of shading.
+pub fn render_depth(scene: &Scene, camera: &Camera) -> Vec<f32> {
+    let w = camera.intrinsics.width();
+    let o = camera.position_m;
+    let mut depth_m = vec![0f32; w * camera.intrinsics.height()];
+    depth_m.par_chunks_mut(w).enumerate().for_each(|(r, row)| {
+        for (i, d) in row.iter_mut().enumerate() {
+            let ray = camera.ray(i as f64 + 0.5, r as f64 + 0.5);
+            *d = trace(scene, o, ray).map_or(f32::INFINITY, |h| h.t as f32);
+        }
+    });
+    depth_m
+}
+
 /// The camera of dense view `x_m` on a scene's survey line at `width`×`height`.
 pub fn survey_camera(scene: &Scene, x_m: f64, width: usize, height: usize) -> Camera {
     let s = &scene.survey;

@@ -9,6 +9,7 @@
 pub mod decode;
 pub mod recorded;
 pub mod select;
+pub mod synthetic;
 #[cfg(feature = "v4l2")]
 pub mod v4l2;
 

@@ -1,0 +1,260 @@
+//! The synthetic depth camera: the scene renderer at the pose given for each
+//! frame's instant (the simulator's truth, or the latest telemetry pose, so it
+//! works against any autopilot), with a RealSense-like sensor model. The clock
+//! is injected, so tests and replays run without waiting.
+
+use super::{DepthSource, SourceError, Stamped};
+use crate::core::{DepthImage, Intrinsics};
+use crate::render::{render_depth, Camera, Frame, SensorModel};
+use crate::scene::Scene;
+use std::sync::Arc;
+
+/// Where the camera is at an instant (metres, world frame of the scene) and
+/// its pitch (0 = nadir, positive = forward).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CameraPose {
+    pub position_m: [f64; 3],
+    pub pitch_rad: f64,
+}
+
+/// The pose at a monotonic instant; `None` when unknown (stale telemetry).
+pub trait PoseAt: Send {
+    fn pose_at(&mut self, mono_ns: u64) -> Option<CameraPose>;
+}
+
+impl<F: FnMut(u64) -> Option<CameraPose> + Send> PoseAt for F {
+    fn pose_at(&mut self, mono_ns: u64) -> Option<CameraPose> {
+        self(mono_ns)
+    }
+}
+
+/// Time for a source that paces itself: the monotonic clock in flight, a
+/// stepped clock in tests.
+pub trait Clock: Send {
+    fn now_ns(&self) -> u64;
+    /// Returns once `now_ns() >= t_ns`.
+    fn wait_until(&self, t_ns: u64);
+}
+
+/// CLOCK_MONOTONIC, sleeping the thread.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct MonotonicClock;
+
+impl Clock for MonotonicClock {
+    fn now_ns(&self) -> u64 {
+        crate::link::mono_ns()
+    }
+    fn wait_until(&self, t_ns: u64) {
+        let now = self.now_ns();
+        if t_ns > now {
+            std::thread::sleep(std::time::Duration::from_nanos(t_ns - now));
+        }
+    }
+}
+
+/// Depth frames rendered at `fps` from the first instant the clock gives.
+pub struct SyntheticDepth<P, C> {
+    scene: Arc<Scene>,
+    intrinsics: Intrinsics,
+    sensor: SensorModel,
+    period_ns: u64,
+    next_ns: Option<u64>,
+    seq: u64,
+    pose: P,
+    clock: C,
+}
+
+impl<P: PoseAt, C: Clock> SyntheticDepth<P, C> {
+    pub fn new(
+        scene: Arc<Scene>,
+        intrinsics: Intrinsics,
+        sensor: SensorModel,
+        fps: f64,
+        pose: P,
+        clock: C,
+    ) -> Self {
+        SyntheticDepth {
+            scene,
+            intrinsics,
+            sensor,
+            period_ns: (1e9 / fps.max(1e-3)).round() as u64,
+            next_ns: None,
+            seq: 0,
+            pose,
+            clock,
+        }
+    }
+}
+
+impl<P: PoseAt, C: Clock> DepthSource for SyntheticDepth<P, C> {
+    fn intrinsics(&self) -> Intrinsics {
+        self.intrinsics
+    }
+
+    fn next_depth(&mut self) -> Result<Option<Stamped<DepthImage>>, SourceError> {
+        let t = *self.next_ns.get_or_insert_with(|| self.clock.now_ns());
+        self.clock.wait_until(t);
+        // A slow render skips the frames it missed rather than falling behind.
+        let now = self.clock.now_ns();
+        let behind = now.saturating_sub(t) / self.period_ns;
+        self.next_ns = Some(t + (behind + 1) * self.period_ns);
+        // This frame is the one due at `t`; the missed ones leave a gap in seq.
+        self.seq += 1;
+        let seq = self.seq;
+        self.seq += behind;
+        let Some(pose) = self.pose.pose_at(t) else {
+            return Err(SourceError::BadFrame {
+                seq,
+                reason: "no pose at the frame's instant".into(),
+            });
+        };
+        let camera = Camera {
+            position_m: pose.position_m,
+            pitch_rad: pose.pitch_rad,
+            intrinsics: self.intrinsics,
+        };
+        let frame = Frame {
+            width: self.intrinsics.width(),
+            height: self.intrinsics.height(),
+            rgb: Vec::new(),
+            depth_m: render_depth(&self.scene, &camera),
+        };
+        // Each frame its own noise and dropout, reproducibly.
+        let sensor = SensorModel {
+            seed: self.sensor.seed ^ seq.wrapping_mul(0x9E37_79B9_7F4A_7C15),
+            ..self.sensor
+        };
+        Ok(Some(Stamped {
+            mono_ns: t,
+            seq,
+            data: frame.z16(&sensor),
+        }))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::core::DepthData;
+    use std::sync::atomic::{AtomicU64, Ordering};
+
+    /// A clock that jumps to whatever instant it is asked to wait for.
+    #[derive(Default)]
+    struct Stepped(AtomicU64);
+    impl Clock for Stepped {
+        fn now_ns(&self) -> u64 {
+            self.0.load(Ordering::SeqCst)
+        }
+        fn wait_until(&self, t_ns: u64) {
+            self.0.fetch_max(t_ns, Ordering::SeqCst);
+        }
+    }
+
+    fn roof() -> Arc<Scene> {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/roof.toml");
+        Arc::new(Scene::load(&path).expect("the roof scene parses"))
+    }
+
+    #[test]
+    fn frames_come_at_the_frame_rate_and_see_the_roof_then_the_ground() {
+        let intr = Intrinsics::from_hfov_deg(40, 30, 69.0, None).unwrap();
+        // Flying along +x at 10 m/s from x = 0 (over the roof) at 40 m.
+        let pose = |t: u64| {
+            Some(CameraPose {
+                position_m: [10.0 * t as f64 * 1e-9, 0.0, 40.0],
+                pitch_rad: 0.0,
+            })
+        };
+        let mut src = SyntheticDepth::new(
+            roof(),
+            intr,
+            SensorModel::default(),
+            10.0,
+            pose,
+            Stepped::default(),
+        );
+        let centre = |d: &DepthImage| match d.data() {
+            DepthData::Z16 { data, .. } => data[15 * 40 + 20],
+            _ => unreachable!(),
+        };
+        let f0 = src.next_depth().unwrap().unwrap();
+        assert_eq!((f0.mono_ns, f0.seq), (0, 1));
+        // Over the 20 m roof from 40 m: 20 m along the axis at the centre.
+        assert_eq!(centre(&f0.data), 20_000);
+        let mut last = f0;
+        for _ in 0..12 {
+            let f = src.next_depth().unwrap().unwrap();
+            assert_eq!(f.mono_ns - last.mono_ns, 100_000_000);
+            assert_eq!(f.seq, last.seq + 1);
+            last = f;
+        }
+        // At t = 1.2 s the camera is at x = 12 m, past the roof's edge at 8 m.
+        assert_eq!(centre(&last.data), 40_000);
+    }
+
+    #[test]
+    fn no_pose_is_a_skipped_frame_not_a_stop() {
+        let intr = Intrinsics::from_hfov_deg(8, 6, 69.0, None).unwrap();
+        let pose = |t: u64| {
+            (t != 100_000_000).then_some(CameraPose {
+                position_m: [0.0, 0.0, 40.0],
+                pitch_rad: 0.0,
+            })
+        };
+        let mut src = SyntheticDepth::new(
+            roof(),
+            intr,
+            SensorModel::default(),
+            10.0,
+            pose,
+            Stepped::default(),
+        );
+        assert!(src.next_depth().is_ok());
+        assert!(matches!(
+            src.next_depth(),
+            Err(SourceError::BadFrame { seq: 2, .. })
+        ));
+        assert_eq!(src.next_depth().unwrap().unwrap().mono_ns, 200_000_000);
+    }
+
+    #[test]
+    fn a_slow_render_skips_missed_frames_and_counts_them() {
+        // A clock already 0.35 s ahead when the second frame is due: frames at
+        // 0.1, 0.2 and 0.3 s are missed; the next one is stamped 0.4 s.
+        struct Late(AtomicU64);
+        impl Clock for Late {
+            fn now_ns(&self) -> u64 {
+                self.0.load(Ordering::SeqCst)
+            }
+            fn wait_until(&self, t_ns: u64) {
+                let jump = if t_ns == 100_000_000 {
+                    350_000_000
+                } else {
+                    t_ns
+                };
+                self.0.fetch_max(jump, Ordering::SeqCst);
+            }
+        }
+        let intr = Intrinsics::from_hfov_deg(8, 6, 69.0, None).unwrap();
+        let pose = |_| {
+            Some(CameraPose {
+                position_m: [0.0, 0.0, 40.0],
+                pitch_rad: 0.0,
+            })
+        };
+        let mut src = SyntheticDepth::new(
+            roof(),
+            intr,
+            SensorModel::default(),
+            10.0,
+            pose,
+            Late(AtomicU64::new(0)),
+        );
+        src.next_depth().unwrap();
+        let f = src.next_depth().unwrap().unwrap();
+        assert_eq!((f.mono_ns, f.seq), (100_000_000, 2));
+        let g = src.next_depth().unwrap().unwrap();
+        // Due at 0.1 s but rendered at 0.35 s: 0.2 and 0.3 s are skipped.
+        assert_eq!((g.mono_ns, g.seq), (400_000_000, 5));
+    }
+}
