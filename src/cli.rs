@@ -156,8 +156,15 @@ pub fn run() -> Result<ExitCode> {
     match cli.command {
         Command::Estimate(a) => estimate(a),
         Command::CheckConfig { file } => {
-            Config::load(&file).map_err(|e| bad(e.to_string()))?;
+            let cfg = Config::load(&file).map_err(|e| bad(e.to_string()))?;
+            if let Some(scene) = &cfg.sim_scene {
+                alfd::scene::Scene::load(scene)
+                    .map_err(|e| bad(format!("{}: sim.scene: {e}", file.display())))?;
+            }
             emit(&format!("{}: ok\n", file.display()))?;
+            if let Some(note) = cfg.unsupported_by_build() {
+                emit(&format!("note: {note}\n"))?;
+            }
             Ok(ExitCode::SUCCESS)
         }
         Command::Tradeoff(a) => run_tradeoff(a),

@@ -1,13 +1,18 @@
 //! The configuration file: TOML into raw structs (`deny_unknown_fields`), then
 //! validated once into typed parameters. Errors name the field (and the line,
 //! where TOML knows it). Sections the estimator uses: `[sampling]`,
-//! `[estimator]`, `[score]`; later parts of the daemon add their own.
+//! `[estimator]`, `[score]`; the daemon's: `[mavlink]`, `[camera]`, `[depth]`,
+//! `[sim]`, `[capture]`, `[trigger]`.
 
+use crate::capture::{CaptureMode, ImageFormat};
 use crate::core::inverse::DepthRange;
 use crate::core::params::{Decimation, GainModel, DECIMATION_LEVELS};
+use crate::core::trigger::TriggerParams;
 use crate::core::{EstimatorParams, Model, ParamError, TrackAxis};
+use crate::link::{LinkConfig, RawLinkConfig};
+use crate::source::select::DeviceSelector;
 use serde::Deserialize;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use thiserror::Error;
 
 #[derive(Debug, Error)]
@@ -20,12 +25,22 @@ pub enum ConfigError {
     },
     #[error("config {path}: {message}")]
     Parse { path: String, message: String },
-    #[error("config {path}: {source}")]
+    #[error("config {path}: {field}: {message}")]
     Invalid {
         path: String,
-        #[source]
-        source: ParamError,
+        field: String,
+        message: String,
     },
+}
+
+impl ConfigError {
+    fn invalid(path: &str, field: impl Into<String>, message: impl Into<String>) -> ConfigError {
+        ConfigError::Invalid {
+            path: path.to_string(),
+            field: field.into(),
+            message: message.into(),
+        }
+    }
 }
 
 #[derive(Debug, Default, Deserialize)]
@@ -37,6 +52,75 @@ pub struct RawConfig {
     pub estimator: RawEstimator,
     #[serde(default)]
     pub score: RawScore,
+    pub mavlink: Option<RawLinkConfig>,
+    #[serde(default)]
+    pub camera: RawSource,
+    #[serde(default)]
+    pub depth: RawSource,
+    #[serde(default)]
+    pub sim: RawSim,
+    #[serde(default)]
+    pub capture: RawCapture,
+    #[serde(default)]
+    pub trigger: RawTrigger,
+}
+
+/// `[camera]` and `[depth]`: where frames come from.
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawSource {
+    /// "synthetic", "v4l2", "recorded" or "none".
+    pub source: Option<String>,
+    /// V4L2: the device, by what survives re-enumeration.
+    pub device_path: Option<PathBuf>,
+    pub device_serial: Option<String>,
+    pub device_bus: Option<String>,
+    pub device_card: Option<String>,
+    /// Colour only: "mjpeg" or "yuyv".
+    pub format: Option<String>,
+    pub width: Option<i64>,
+    pub height: Option<i64>,
+    pub fps: Option<f64>,
+    /// Depth only: field of view across the width, degrees, and principal point.
+    pub hfov_deg: Option<f64>,
+    pub principal_px: Option<[f64; 2]>,
+    /// Depth only: metres per Z16 unit.
+    pub scale_m: Option<f64>,
+    /// Synthetic depth only: noise `σ = k·d²` (k in 1/m), dropout fraction, range.
+    pub noise_per_m: Option<f64>,
+    pub dropout: Option<f64>,
+    pub max_range_m: Option<f64>,
+    /// Recorded: the recording's directory.
+    pub dir: Option<PathBuf>,
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawSim {
+    /// "truth" (render at the simulator's true pose) or "telemetry".
+    pub pose: Option<String>,
+    pub scene: Option<PathBuf>,
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawCapture {
+    pub dir: Option<PathBuf>,
+    /// "frame", "camera_command" or "autopilot_distance".
+    pub mode: Option<String>,
+    /// "jpeg" or "png".
+    pub image_format: Option<String>,
+    pub jpeg_quality: Option<i64>,
+    /// For mode "camera_command": "image_start_capture" or "digicam_control".
+    pub command: Option<String>,
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawTrigger {
+    pub rate_max_hz: Option<f64>,
+    pub fallback_spacing_m: Option<f64>,
+    pub margin: Option<f64>,
 }
 
 #[derive(Debug, Default, Deserialize)]
@@ -271,22 +355,339 @@ impl RawConfig {
     }
 }
 
-/// Everything a command needs from a config file, validated.
+/// Where frames come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum SourceKind {
+    Synthetic,
+    V4l2,
+    Recorded,
+    /// No camera (e.g. one the autopilot triggers), or no depth (fixed spacing).
+    #[default]
+    None,
+}
+
+/// A validated `[camera]` or `[depth]` section.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct SourceConfig {
+    pub kind: SourceKind,
+    pub device: DeviceSelector,
+    pub mjpeg: bool,
+    pub width: usize,
+    pub height: usize,
+    pub fps: f64,
+    pub hfov_deg: f64,
+    pub principal_px: Option<(f64, f64)>,
+    pub scale_m: f64,
+    pub noise_per_m: f64,
+    pub dropout: f64,
+    pub max_range_m: f64,
+    pub dir: Option<PathBuf>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum SimPose {
+    #[default]
+    Truth,
+    Telemetry,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum CameraCommand {
+    #[default]
+    ImageStartCapture,
+    DigicamControl,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct CaptureConfig {
+    pub dir: PathBuf,
+    pub mode: CaptureMode,
+    pub image_format: ImageFormat,
+    pub command: CameraCommand,
+}
+
+impl Default for CaptureConfig {
+    fn default() -> Self {
+        CaptureConfig {
+            dir: PathBuf::from("captures"),
+            mode: CaptureMode::Frame,
+            image_format: ImageFormat::Jpeg { quality: 90 },
+            command: CameraCommand::ImageStartCapture,
+        }
+    }
+}
+
+/// Everything a command needs from a config file, validated once.
 #[derive(Debug, Clone, Default)]
 pub struct Config {
     pub estimator: EstimatorParams,
+    /// `None` without a `[mavlink]` section (estimate, eval).
+    pub link: Option<LinkConfig>,
+    pub camera: SourceConfig,
+    pub depth: SourceConfig,
+    pub sim_pose: SimPose,
+    pub sim_scene: Option<PathBuf>,
+    pub capture: CaptureConfig,
+    pub trigger: TriggerParams,
+}
+
+fn word<T: Copy>(field: &str, value: &str, choices: &[(&str, T)]) -> Result<T, (String, String)> {
+    choices
+        .iter()
+        .find(|(w, _)| *w == value)
+        .map(|(_, t)| *t)
+        .ok_or_else(|| {
+            let names: Vec<String> = choices.iter().map(|(w, _)| format!("\"{w}\"")).collect();
+            (
+                field.to_string(),
+                format!("unknown value {value:?}: use {}", names.join(", ")),
+            )
+        })
+}
+
+fn positive(field: &str, v: f64, max: f64) -> Result<f64, (String, String)> {
+    if v.is_finite() && v > 0.0 && v <= max {
+        Ok(v)
+    } else {
+        Err((
+            field.to_string(),
+            format!("must be positive and at most {max}, got {v}"),
+        ))
+    }
+}
+
+fn fraction(field: &str, v: f64, max: f64) -> Result<f64, (String, String)> {
+    if v.is_finite() && (0.0..=max).contains(&v) {
+        Ok(v)
+    } else {
+        Err((field.to_string(), format!("must be in [0, {max}], got {v}")))
+    }
+}
+
+fn size(field: &str, v: Option<i64>, default: usize) -> Result<usize, (String, String)> {
+    match v {
+        None => Ok(default),
+        Some(n) if (1..=16384).contains(&n) => Ok(n as usize),
+        Some(n) => Err((
+            field.to_string(),
+            format!("must be 1 to 16384 pixels, got {n}"),
+        )),
+    }
+}
+
+/// Relative paths in a config are relative to the config file.
+fn resolve(base: &Path, p: &Path) -> PathBuf {
+    if p.is_absolute() {
+        p.to_path_buf()
+    } else {
+        base.join(p)
+    }
+}
+
+fn source(section: &str, r: &RawSource, base: &Path) -> Result<SourceConfig, (String, String)> {
+    let f = |key: &str| format!("{section}.{key}");
+    let kinds = [
+        ("synthetic", SourceKind::Synthetic),
+        ("v4l2", SourceKind::V4l2),
+        ("recorded", SourceKind::Recorded),
+        ("none", SourceKind::None),
+    ];
+    let kind = match &r.source {
+        Some(w) => word(&f("source"), w, &kinds)?,
+        None => SourceKind::None,
+    };
+    let mjpeg = match r.format.as_deref() {
+        None | Some("mjpeg") => true,
+        Some("yuyv") => false,
+        Some(other) => {
+            return Err((
+                f("format"),
+                format!("unknown format {other:?}: use \"mjpeg\" or \"yuyv\""),
+            ))
+        }
+    };
+    let dir = r.dir.as_ref().map(|d| resolve(base, d));
+    if kind == SourceKind::Recorded && dir.is_none() {
+        return Err((
+            f("dir"),
+            "a recorded source needs the recording's directory".into(),
+        ));
+    }
+    let hfov_deg = r.hfov_deg.unwrap_or(69.0);
+    if !(1.0..=170.0).contains(&hfov_deg) {
+        return Err((
+            f("hfov_deg"),
+            format!("must be between 1 and 170 degrees, got {hfov_deg}"),
+        ));
+    }
+    Ok(SourceConfig {
+        kind,
+        device: DeviceSelector {
+            path: r.device_path.clone(),
+            serial: r.device_serial.clone(),
+            bus: r.device_bus.clone(),
+            card: r.device_card.clone(),
+        },
+        mjpeg,
+        width: size(&f("width"), r.width, 640)?,
+        height: size(&f("height"), r.height, 480)?,
+        fps: positive(&f("fps"), r.fps.unwrap_or(30.0), 1000.0)?,
+        hfov_deg,
+        principal_px: r.principal_px.map(|[x, y]| (x, y)),
+        scale_m: positive(&f("scale_m"), r.scale_m.unwrap_or(0.001), 100.0)?,
+        noise_per_m: fraction(&f("noise_per_m"), r.noise_per_m.unwrap_or(0.0), 1.0)?,
+        dropout: fraction(&f("dropout"), r.dropout.unwrap_or(0.0), 1.0)?,
+        max_range_m: positive(&f("max_range_m"), r.max_range_m.unwrap_or(65.0), 1e6)?,
+        dir,
+    })
+}
+
+impl RawConfig {
+    /// The daemon's sections, checked alone and against each other.
+    fn daemon(&self, estimator: &EstimatorParams, base: &Path) -> Result<Config, (String, String)> {
+        let link = match &self.mavlink {
+            Some(raw) => Some(LinkConfig::try_from(raw.clone()).map_err(|e| (e.field, e.problem))?),
+            None => None,
+        };
+        let camera = source("camera", &self.camera, base)?;
+        let depth = source("depth", &self.depth, base)?;
+        let sim_pose = match &self.sim.pose {
+            Some(w) => word(
+                "sim.pose",
+                w,
+                &[("truth", SimPose::Truth), ("telemetry", SimPose::Telemetry)],
+            )?,
+            None => SimPose::Truth,
+        };
+        let sim_scene = self.sim.scene.as_ref().map(|p| resolve(base, p));
+        let uses_synthetic =
+            camera.kind == SourceKind::Synthetic || depth.kind == SourceKind::Synthetic;
+        if uses_synthetic && sim_scene.is_none() {
+            return Err((
+                "sim.scene".into(),
+                "a synthetic camera or depth source needs a scene file".into(),
+            ));
+        }
+        if depth.kind == SourceKind::None
+            && estimator.model != Model::Fixed
+            && self.mavlink.is_some()
+        {
+            return Err((
+                "depth.source".into(),
+                format!(
+                    "the {} model needs depth: give a depth source, or use sampling.model = \"fixed\"",
+                    estimator.model.as_str()
+                ),
+            ));
+        }
+        let c = &self.capture;
+        let mode = match &c.mode {
+            Some(w) => word(
+                "capture.mode",
+                w,
+                &[
+                    ("frame", CaptureMode::Frame),
+                    ("camera_command", CaptureMode::CameraCommand),
+                    ("autopilot_distance", CaptureMode::AutopilotDistance),
+                ],
+            )?,
+            None => CaptureMode::Frame,
+        };
+        if mode == CaptureMode::Frame && camera.kind == SourceKind::None && self.mavlink.is_some() {
+            return Err((
+                "capture.mode".into(),
+                "\"frame\" saves the camera's frames, but camera.source is \"none\": use \"camera_command\" or \"autopilot_distance\"".into(),
+            ));
+        }
+        let quality = match c.jpeg_quality {
+            None => 90,
+            Some(q) if (1..=100).contains(&q) => q as u8,
+            Some(q) => {
+                return Err((
+                    "capture.jpeg_quality".into(),
+                    format!("must be 1 to 100, got {q}"),
+                ))
+            }
+        };
+        let image_format = match c.image_format.as_deref() {
+            None | Some("jpeg") => ImageFormat::Jpeg { quality },
+            Some("png") => ImageFormat::Png,
+            Some(other) => {
+                return Err((
+                    "capture.image_format".into(),
+                    format!("unknown format {other:?}: use \"jpeg\" or \"png\""),
+                ))
+            }
+        };
+        let command = match &c.command {
+            Some(w) => word(
+                "capture.command",
+                w,
+                &[
+                    ("image_start_capture", CameraCommand::ImageStartCapture),
+                    ("digicam_control", CameraCommand::DigicamControl),
+                ],
+            )?,
+            None => CameraCommand::ImageStartCapture,
+        };
+        let t = &self.trigger;
+        let defaults = TriggerParams::default();
+        let trigger = TriggerParams {
+            rate_max_hz: positive(
+                "trigger.rate_max_hz",
+                t.rate_max_hz.unwrap_or(defaults.rate_max_hz),
+                1000.0,
+            )?,
+            fallback_spacing_m: positive(
+                "trigger.fallback_spacing_m",
+                t.fallback_spacing_m.unwrap_or(defaults.fallback_spacing_m),
+                1e4,
+            )?,
+            margin: fraction("trigger.margin", t.margin.unwrap_or(defaults.margin), 0.5)?,
+        };
+        Ok(Config {
+            estimator: estimator.clone(),
+            link,
+            camera,
+            depth,
+            sim_pose,
+            sim_scene,
+            capture: CaptureConfig {
+                dir: resolve(base, c.dir.as_deref().unwrap_or(Path::new("captures"))),
+                mode,
+                image_format,
+                command,
+            },
+            trigger,
+        })
+    }
 }
 
 impl Config {
+    /// `path` names the file in errors; relative paths resolve against its directory.
     pub fn from_text(text: &str, path: &str) -> Result<Config, ConfigError> {
         let raw = RawConfig::parse(text, path)?;
         let estimator = raw
             .estimator_params()
-            .map_err(|source| ConfigError::Invalid {
-                path: path.to_string(),
-                source,
-            })?;
-        Ok(Config { estimator })
+            .map_err(|e| ConfigError::invalid(path, e.field, e.message))?;
+        let base = Path::new(path).parent().unwrap_or(Path::new("."));
+        raw.daemon(&estimator, base)
+            .map_err(|(field, message)| ConfigError::invalid(path, field, message))
+    }
+
+    /// What this build cannot do that the config asks for (a valid config may
+    /// still need a feature: `alfd run` refuses to start, `check-config` says so).
+    pub fn unsupported_by_build(&self) -> Option<String> {
+        let v4l2 = [("camera", &self.camera), ("depth", &self.depth)]
+            .into_iter()
+            .find(|(_, s)| s.kind == SourceKind::V4l2)
+            .map(|(name, _)| name);
+        match v4l2 {
+            Some(section) if !cfg!(feature = "v4l2") => Some(format!(
+                "{section}.source = \"v4l2\" needs V4L2 support, which this build lacks: build with `cargo build --release --features v4l2`"
+            )),
+            _ => None,
+        }
     }
 
     pub fn load(path: &Path) -> Result<Config, ConfigError> {
@@ -341,5 +742,70 @@ mod tests {
         assert!(e.to_string().contains("sampling.model"), "{e}");
         let e = Config::from_text("[estimator]\ndecimation = -2\n", "x.toml").unwrap_err();
         assert!(e.to_string().contains("estimator.decimation"), "{e}");
+    }
+
+    #[test]
+    fn daemon_sections_are_typed_and_paths_resolve_against_the_file() {
+        let c = Config::from_text(
+            "[mavlink]\naddress = \"udpout:127.0.0.1:14550\"\n\
+             [sim]\nscene = \"scenes/roof.toml\"\npose = \"telemetry\"\n\
+             [depth]\nsource = \"synthetic\"\nwidth = 320\nheight = 240\n\
+             [camera]\nsource = \"recorded\"\ndir = \"rec\"\n\
+             [capture]\nmode = \"frame\"\nimage_format = \"png\"\n\
+             [trigger]\nrate_max_hz = 15.0\n",
+            "/etc/alfd/alfd.toml",
+        )
+        .unwrap();
+        assert!(c.link.is_some());
+        assert_eq!(c.sim_pose, SimPose::Telemetry);
+        assert_eq!(
+            c.sim_scene.as_deref(),
+            Some(Path::new("/etc/alfd/scenes/roof.toml"))
+        );
+        assert_eq!(
+            (c.depth.kind, c.depth.width, c.depth.height),
+            (SourceKind::Synthetic, 320, 240)
+        );
+        assert_eq!(c.camera.dir.as_deref(), Some(Path::new("/etc/alfd/rec")));
+        assert_eq!(c.capture.image_format, ImageFormat::Png);
+        assert_eq!(c.trigger.rate_max_hz, 15.0);
+    }
+
+    #[test]
+    fn contradictions_between_sections_name_the_field() {
+        let cases = [
+            // A synthetic source without a scene to render.
+            ("[depth]\nsource = \"synthetic\"\n", "sim.scene"),
+            // The occlusion model without depth, on a daemon config.
+            ("[mavlink]\naddress = \"udpout:127.0.0.1:14550\"\n[camera]\nsource = \"none\"\n[capture]\nmode = \"camera_command\"\n", "depth.source"),
+            // Saving frames with no camera.
+            ("[mavlink]\naddress = \"udpout:127.0.0.1:14550\"\n[sampling]\nmodel = \"fixed\"\n", "capture.mode"),
+            ("[camera]\nsource = \"recorded\"\n", "camera.dir"),
+            ("[camera]\nsource = \"webcam\"\n", "camera.source"),
+            ("[trigger]\nrate_max_hz = 0.0\n", "trigger.rate_max_hz"),
+            ("[capture]\njpeg_quality = 101\n", "capture.jpeg_quality"),
+            ("[mavlink]\naddress = \"carrier-pigeon:1\"\n", "mavlink.address"),
+        ];
+        for (text, field) in cases {
+            let e = Config::from_text(text, "x.toml").unwrap_err().to_string();
+            assert!(e.contains(field), "{text:?}: {e}");
+        }
+        // Fixed spacing with an autopilot-triggered camera needs neither source.
+        Config::from_text(
+            "[mavlink]\naddress = \"udpout:127.0.0.1:14550\"\n[sampling]\nmodel = \"fixed\"\n[capture]\nmode = \"autopilot_distance\"\n",
+            "x.toml",
+        )
+        .unwrap();
+    }
+
+    #[test]
+    fn a_v4l2_config_is_valid_and_the_build_says_what_it_lacks() {
+        let c = Config::from_text(
+            "[depth]\nsource = \"v4l2\"\ndevice_serial = \"1\"\n",
+            "x.toml",
+        )
+        .unwrap();
+        assert_eq!(c.depth.device.serial.as_deref(), Some("1"));
+        assert_eq!(c.unsupported_by_build().is_some(), !cfg!(feature = "v4l2"));
     }
 }

@@ -429,4 +429,10 @@ fn check_config_accepts_the_shipped_configs_and_names_bad_fields() {
         &["check-config", bad.to_str().unwrap()],
         &["decimaton", "line 2"],
     );
+    // A scene that is not there is caught by check-config, not at take-off.
+    std::fs::write(&bad, "[sim]\nscene = \"no-such-scene.toml\"\n").unwrap();
+    rejects(
+        &["check-config", bad.to_str().unwrap()],
+        &["sim.scene", "no-such-scene.toml"],
+    );
 }
