@@ -4,6 +4,7 @@
 pub mod capture;
 pub mod config;
 pub mod core;
+pub mod daemon;
 pub mod depthio;
 pub mod eval;
 pub mod link;
