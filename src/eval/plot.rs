@@ -106,34 +106,25 @@ fn save(
 /// method) and `<scene>_psnr.png` (PSNR of each in-between view, both renderers).
 pub fn scene_plots(r: &SceneResult, dir: &Path) -> Result<(), String> {
     let xr = (r.xs[0], *r.xs.last().unwrap_or(&(r.xs[0] + 1.0)));
-    let spacing: Series = METHODS
-        .iter()
-        .enumerate()
-        .map(|(m, model)| {
-            (
-                model.as_str().to_string(),
-                COLOURS[m],
-                r.xs.iter()
-                    .zip(&r.estimates)
-                    .map(|(&x, e)| (x, e.chosen_m[m].unwrap_or(f64::NAN)))
-                    .collect(),
-            )
-        })
-        .collect();
-    let degree: Series = METHODS
-        .iter()
-        .enumerate()
-        .map(|(m, model)| {
-            (
-                model.as_str().to_string(),
-                COLOURS[m],
-                r.xs.iter()
-                    .zip(&r.estimates)
-                    .map(|(&x, e)| (x, e.density_per_m * e.chosen_m[m].unwrap_or(f64::NAN)))
-                    .collect(),
-            )
-        })
-        .collect();
+    // One series per method of a value read off each view's estimates.
+    let per_method = |value: &dyn Fn(&_, usize) -> f64| -> Series {
+        METHODS
+            .iter()
+            .enumerate()
+            .map(|(m, model)| {
+                (
+                    model.as_str().to_string(),
+                    COLOURS[m],
+                    r.xs.iter()
+                        .zip(&r.estimates)
+                        .map(|(&x, e)| (x, value(e, m)))
+                        .collect(),
+                )
+            })
+            .collect()
+    };
+    let spacing = per_method(&|e, m| e.chosen_m[m].unwrap_or(f64::NAN));
+    let degree = per_method(&|e, m| e.density_per_m * e.chosen_m[m].unwrap_or(f64::NAN));
     save(&dir.join(format!("{}_spacing.png", r.name)), |root| {
         let parts = root.split_evenly((2, 1));
         panel(

@@ -150,6 +150,18 @@ mod tests {
         }
     }
 
+    /// A 10 fps synthetic camera over the roof scene on a stepped clock.
+    fn at_10fps<P: PoseAt>(intr: Intrinsics, pose: P) -> SyntheticDepth<P, Stepped> {
+        SyntheticDepth::new(
+            roof(),
+            intr,
+            SensorModel::default(),
+            10.0,
+            pose,
+            Stepped::default(),
+        )
+    }
+
     fn roof() -> Arc<Scene> {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/roof.toml");
         Arc::new(Scene::load(&path).expect("the roof scene parses"))
@@ -165,14 +177,7 @@ mod tests {
                 pitch_rad: 0.0,
             })
         };
-        let mut src = SyntheticDepth::new(
-            roof(),
-            intr,
-            SensorModel::default(),
-            10.0,
-            pose,
-            Stepped::default(),
-        );
+        let mut src = at_10fps(intr, pose);
         let centre = |d: &DepthImage| match d.data() {
             DepthData::Z16 { data, .. } => data[15 * 40 + 20],
             _ => unreachable!(),
@@ -201,14 +206,7 @@ mod tests {
                 pitch_rad: 0.0,
             })
         };
-        let mut src = SyntheticDepth::new(
-            roof(),
-            intr,
-            SensorModel::default(),
-            10.0,
-            pose,
-            Stepped::default(),
-        );
+        let mut src = at_10fps(intr, pose);
         assert!(src.next_depth().is_ok());
         assert!(matches!(
             src.next_depth(),
