@@ -15,6 +15,8 @@ python3 -m pip --version >/dev/null 2>&1 || need+=(python3-pip)
 dpkg -s libclang-dev >/dev/null 2>&1 || need+=(libclang-dev)
 # exiftool: the capture tests read the EXIF GPS tags back.
 command -v exiftool >/dev/null || need+=(libimage-exiftool-perl)
+# systemd-analyze: tests/systemd_unit.rs scores the unit's hardening offline.
+command -v systemd-analyze >/dev/null || need+=(systemd)
 if ((${#need[@]})); then
     sudo=""
     [ "$(id -u)" -eq 0 ] || sudo="sudo"

@@ -23,7 +23,7 @@ impl std::fmt::Display for BadInput {
 }
 impl std::error::Error for BadInput {}
 
-fn bad(msg: impl Into<String>) -> anyhow::Error {
+pub fn bad(msg: impl Into<String>) -> anyhow::Error {
     anyhow::Error::new(BadInput(msg.into()))
 }
 
@@ -44,10 +44,20 @@ pub fn exit_code(e: &anyhow::Error) -> u8 {
 struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// Log format on stderr.
+    #[arg(long, global = true, value_enum, default_value = "text")]
+    log_format: crate::daemon_cmd::LogFormat,
+    /// Log level: error, warn, info, debug, trace.
+    #[arg(long, global = true, default_value = "info")]
+    log_level: tracing::Level,
 }
 
 #[derive(Subcommand)]
 enum Command {
+    /// The daemon on the simulated autopilot over a synthetic scene, judged against the truth.
+    Sim(crate::daemon_cmd::SimCliArgs),
+    /// The daemon: link, cameras, estimator, trigger and capture log, until SIGTERM.
+    Run(crate::daemon_cmd::RunArgs),
     /// One estimate of the permissible spacing from one depth map.
     Estimate(EstimateArgs),
     /// Validate a config file: prints the field and what is wrong, exit 2.
@@ -153,7 +163,10 @@ pub fn run() -> Result<ExitCode> {
             e.exit();
         }
     };
+    crate::daemon_cmd::init_logs(cli.log_format, cli.log_level);
     match cli.command {
+        Command::Sim(a) => crate::daemon_cmd::sim(a),
+        Command::Run(a) => crate::daemon_cmd::run_daemon(a),
         Command::Estimate(a) => estimate(a),
         Command::CheckConfig { file } => {
             let cfg = Config::load(&file).map_err(|e| bad(e.to_string()))?;
@@ -173,7 +186,7 @@ pub fn run() -> Result<ExitCode> {
 }
 
 /// Writes to stdout; a closed pipe (`alfd ... | head`) is not an error.
-fn emit(text: &str) -> Result<()> {
+pub fn emit(text: &str) -> Result<()> {
     use std::io::Write;
     match std::io::stdout().lock().write_all(text.as_bytes()) {
         Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),

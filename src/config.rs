@@ -92,6 +92,13 @@ pub struct RawSource {
     pub max_range_m: Option<f64>,
     /// Recorded: the recording's directory.
     pub dir: Option<PathBuf>,
+    /// Recorded: "as_recorded" (the recorded timestamps, once through) or
+    /// "live" (paced in real time, stamped with the current clock, looping:
+    /// a stand-in for a live camera on the bench).
+    pub replay: Option<String>,
+    /// Tilt of the camera from nadir about the vehicle's right axis, degrees
+    /// (0 = straight down, positive = forward).
+    pub mount_pitch_deg: Option<f64>,
 }
 
 #[derive(Debug, Default, Deserialize)]
@@ -382,6 +389,9 @@ pub struct SourceConfig {
     pub dropout: f64,
     pub max_range_m: f64,
     pub dir: Option<PathBuf>,
+    /// Recorded sources: replay live (paced, re-stamped, looping).
+    pub replay_live: bool,
+    pub mount_pitch_rad: f64,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -520,8 +530,27 @@ fn source(section: &str, r: &RawSource, base: &Path) -> Result<SourceConfig, (St
             format!("must be between 1 and 170 degrees, got {hfov_deg}"),
         ));
     }
+    let replay_live = match r.replay.as_deref() {
+        None | Some("as_recorded") => false,
+        Some("live") => true,
+        Some(other) => {
+            return Err((
+                f("replay"),
+                format!("unknown replay {other:?}: use \"as_recorded\" or \"live\""),
+            ))
+        }
+    };
+    let mount_pitch_deg = r.mount_pitch_deg.unwrap_or(0.0);
+    if !(mount_pitch_deg.is_finite() && (-90.0..=90.0).contains(&mount_pitch_deg)) {
+        return Err((
+            f("mount_pitch_deg"),
+            format!("must be between -90 and 90 degrees, got {mount_pitch_deg}"),
+        ));
+    }
     Ok(SourceConfig {
         kind,
+        mount_pitch_rad: mount_pitch_deg.to_radians(),
+        replay_live,
         device: DeviceSelector {
             path: r.device_path.clone(),
             serial: r.device_serial.clone(),

@@ -2,6 +2,7 @@
 //! mapped to exit codes in one place: 2 for bad input, 1 for anything else.
 
 mod cli;
+mod daemon_cmd;
 
 use std::process::ExitCode;
 

@@ -112,6 +112,10 @@ pub struct SimConfig {
     pub mavlink_version: u8,
     pub system_id: u8,
     pub component_id: u8,
+    /// A ground station to forward to, `udpout:HOST:PORT` (the station listens): it gets the
+    /// simulator's own messages and everything heard on the main transport, and what it sends
+    /// is forwarded to the main transport. No faults on this side.
+    pub gcs: Option<String>,
     pub survey: Survey,
     pub streams: Streams,
     /// How much faster the autopilot's boot clock runs than this machine's monotonic clock.
@@ -148,6 +152,7 @@ struct RawLink {
     mavlink_version: u8,
     system_id: u8,
     component_id: u8,
+    gcs: Option<String>,
 }
 
 impl Default for RawLink {
@@ -160,6 +165,7 @@ impl Default for RawLink {
             mavlink_version: 2,
             system_id: 1,
             component_id: 1,
+            gcs: None,
         }
     }
 }
@@ -312,6 +318,18 @@ fn probability(field: &'static str, v: f64) -> Result<f64, ConfigError> {
     Ok(v)
 }
 
+/// Check a ground-station address: `udpout:HOST:PORT` with a numeric port.
+pub fn check_gcs_address(address: &str) -> Result<(), String> {
+    let bad = || format!("`{address}`: expected udpout:HOST:PORT, e.g. udpout:127.0.0.1:14550");
+    let rest = address.strip_prefix("udpout:").ok_or_else(bad)?;
+    let (host, port) = rest.rsplit_once(':').ok_or_else(bad)?;
+    // Port 0 cannot be sent to: the station binds first and passes its real port.
+    if host.is_empty() || !matches!(port.parse::<u16>(), Ok(p) if p > 0) {
+        return Err(bad());
+    }
+    Ok(())
+}
+
 impl Default for SimConfig {
     fn default() -> Self {
         SimConfig::from_toml("").expect("the defaults are valid")
@@ -359,6 +377,9 @@ impl SimConfig {
                 "link.mavlink_version",
                 format!("{}: expected 1 or 2", l.mavlink_version),
             ));
+        }
+        if let Some(g) = &l.gcs {
+            check_gcs_address(g).map_err(|e| bad("link.gcs", e))?;
         }
         if l.system_id == 0 {
             return Err(bad("link.system_id", "0 is the broadcast id"));
@@ -451,6 +472,7 @@ impl SimConfig {
             mavlink_version: l.mavlink_version,
             system_id: l.system_id,
             component_id: l.component_id,
+            gcs: l.gcs,
             survey,
             streams,
             clock_drift_ppm: raw.clock.drift_ppm,

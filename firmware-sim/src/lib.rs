@@ -1,6 +1,7 @@
 //! firmware-sim: a simulated autopilot for alfd's tests and bench. It flies an analytic survey,
 //! streams MAVLink telemetry stamped by its own boot clock over a pty, serial port, UDP or TCP,
 //! answers TIMESYNC and camera commands, records the truth, and injects faults on demand.
+//! Optionally it forwards MAVLink between that link and a ground station over UDP.
 
 pub mod clock;
 pub mod config;

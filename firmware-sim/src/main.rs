@@ -20,6 +20,10 @@ struct Args {
     /// For a pty, the stable symlink to keep pointing at the current pty.
     #[arg(long)]
     link: Option<PathBuf>,
+    /// A ground station to forward to, `udpout:HOST:PORT` (it listens there; overrides the
+    /// config's `link.gcs`).
+    #[arg(long, value_name = "ADDR")]
+    gcs: Option<String>,
     /// MAVLink version to send (1 or 2).
     #[arg(long)]
     mavlink: Option<u8>,
@@ -106,6 +110,10 @@ fn config(a: &Args) -> Result<SimConfig, String> {
     }
     if let (Some(l), Transport::Pty { link }) = (&a.link, &mut c.transport) {
         *link = Some(l.clone());
+    }
+    if let Some(g) = &a.gcs {
+        firmware_sim::config::check_gcs_address(g).map_err(|e| format!("--gcs: {e}"))?;
+        c.gcs = Some(g.clone());
     }
     if let Some(v) = a.mavlink {
         if !matches!(v, 1 | 2) {

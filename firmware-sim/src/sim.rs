@@ -1,13 +1,14 @@
 //! The engine: one task owns the vehicle (trajectory, boot clock, stream schedule, camera
 //! trigger, active faults); the transport task owns the wire. The handle injects faults and
-//! reads the truth; events come out on a broadcast channel.
+//! reads the truth; events come out on a broadcast channel. With a ground station configured,
+//! the engine is also the router between the two links, like PX4's MAVLink forwarding.
 
 use crate::clock::{instant_at, mono_ns, BootClock};
 use crate::config::{FaultKind, SimConfig};
 use crate::faults::{delay, mangle, Noise, Rng};
 use crate::geo::ned_to_geodetic;
 use crate::trajectory::{quat_from_rpy, Trajectory};
-use crate::transport::{self, Inbound, LinkCtl, LinkIo, Outgoing};
+use crate::transport::{self, GcsLink, Inbound, LinkCtl, LinkIo, Outgoing};
 use crate::truth::{Line, Truth};
 use crate::{Fault, SimEvent};
 use mavlink::dialects::common::*;
@@ -22,6 +23,11 @@ use tokio::task::JoinHandle;
 pub enum SimError {
     #[error("opening the link: {0}")]
     Link(#[from] std::io::Error),
+    #[error("ground-station link {address}: {source}")]
+    Gcs {
+        address: String,
+        source: std::io::Error,
+    },
     #[error("truth file {path}: {source}")]
     Truth {
         path: PathBuf,
@@ -40,7 +46,14 @@ pub struct SimStats {
     pub bytes_corrupted: u64,
     /// Frames lost because the transport task was behind (should stay 0).
     pub frames_overflowed: u64,
+    /// Messages decoded from the main transport.
     pub received: u64,
+    /// The simulator's own frames sent to the ground station.
+    pub gcs_sent: u64,
+    /// Frames heard on the main transport and passed to the ground station.
+    pub forwarded_to_gcs: u64,
+    /// Frames from the ground station put on the main transport (before the wire's faults).
+    pub forwarded_from_gcs: u64,
 }
 
 struct Shared {
@@ -144,6 +157,13 @@ impl SimHandle {
 pub async fn start(config: SimConfig) -> Result<SimHandle, SimError> {
     let (events, _) = broadcast::channel(4096);
     let io = transport::start(config.transport.clone(), events.clone()).await?;
+    let gcs = match &config.gcs {
+        Some(a) => Some(GcsLink::open(a).await.map_err(|source| SimError::Gcs {
+            address: a.clone(),
+            source,
+        })?),
+        None => None,
+    };
     let truth = match &config.truth_path {
         Some(p) => Some(std::io::BufWriter::new(std::fs::File::create(p).map_err(
             |source| SimError::Truth {
@@ -170,7 +190,8 @@ pub async fn start(config: SimConfig) -> Result<SimHandle, SimError> {
     let address = io.address.clone();
     let link_path = io.link_path.clone();
     let mut engine = Engine::new(config, shared.clone(), events.clone(), boot, truth);
-    let task = tokio::spawn(async move { engine.run(io, control_rx).await });
+    let links = Links { main: io, gcs };
+    let task = tokio::spawn(async move { engine.run(links, control_rx).await });
     Ok(SimHandle {
         address,
         link_path,
@@ -179,6 +200,26 @@ pub async fn start(config: SimConfig) -> Result<SimHandle, SimError> {
         shared,
         task,
     })
+}
+
+/// The main transport and the optional ground-station port.
+struct Links {
+    main: LinkIo,
+    gcs: Option<GcsLink>,
+}
+
+/// Where a frame came from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Side {
+    Main,
+    Gcs,
+}
+
+/// Where the simulator's own frame goes: replies go back where the request came from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum To {
+    Both,
+    Only(Side),
 }
 
 /// The streamed messages, by MAVLink id.
@@ -191,7 +232,8 @@ struct Engine {
     boot: BootClock,
     rng: Rng,
     noise: Noise,
-    seq: u8,
+    /// Sequence numbers per link (main, ground station), so neither sees gaps.
+    seq: [u8; 2],
     last_delivery: tokio::time::Instant,
     /// Per stream: period (ms, 0 = off) and next due boot ms.
     streams: [(u64, u64); 8],
@@ -253,7 +295,7 @@ impl Engine {
         let mut e = Engine {
             rng: Rng::new(cfg.faults.seed),
             noise,
-            seq: 0,
+            seq: [0; 2],
             last_delivery: tokio::time::Instant::now(),
             streams: [(0, 0); 8],
             silent_until: 0,
@@ -319,15 +361,22 @@ impl Engine {
         t
     }
 
-    async fn run(&mut self, mut io: LinkIo, mut control: mpsc::Receiver<Control>) {
+    async fn run(&mut self, mut io: Links, mut control: mpsc::Receiver<Control>) {
         loop {
             let wake = instant_at(self.next_wake());
+            let from_gcs = async {
+                match io.gcs.as_mut() {
+                    Some(g) => g.inbound.recv().await,
+                    None => std::future::pending().await,
+                }
+            };
             tokio::select! {
                 _ = tokio::time::sleep_until(wake) => self.tick(&io, mono_ns()).await,
-                m = io.inbound.recv() => match m {
-                    Some(m) => self.on_inbound(&io, m),
+                m = io.main.inbound.recv() => match m {
+                    Some(m) => self.on_inbound(&io, Side::Main, m),
                     None => break,
                 },
+                Some(m) = from_gcs => self.on_inbound(&io, Side::Gcs, m),
                 c = control.recv() => match c {
                     Some(Control::Inject(f, done)) => {
                         let t = self.apply(&io, f).await;
@@ -340,10 +389,10 @@ impl Engine {
         if let Some(w) = self.truth.as_mut() {
             let _ = w.flush();
         }
-        io.task.abort();
+        io.main.task.abort();
     }
 
-    async fn tick(&mut self, io: &LinkIo, now: u64) {
+    async fn tick(&mut self, io: &Links, now: u64) {
         let due: Vec<(u64, Fault)> = self
             .pending
             .iter()
@@ -401,7 +450,7 @@ impl Engine {
     }
 
     /// Emit stream message `id` sampled at boot time `boot_ms`.
-    fn emit_stream(&mut self, io: &LinkIo, id: u32, boot_ms: u64, now: u64) {
+    fn emit_stream(&mut self, io: &Links, id: u32, boot_ms: u64, now: u64) {
         if !self.telemetry_allowed(id, now) {
             return;
         }
@@ -502,33 +551,61 @@ impl Engine {
         if id == 33 && self.cfg.truth_every_step {
             self.write_truth("step", None, tr);
         }
-        self.send(io, &msg, now);
+        self.send(io, &msg, now, To::Both);
     }
 
-    fn send(&mut self, io: &LinkIo, msg: &MavMessage, now: u64) {
+    /// Encode one of the simulator's own messages with the next sequence number of `side`.
+    fn encode(&mut self, msg: &MavMessage, side: Side) -> Option<Vec<u8>> {
         let version = if self.cfg.mavlink_version == 1 {
             MavlinkVersion::V1
         } else {
             MavlinkVersion::V2
         };
         if version == MavlinkVersion::V1 && msg.message_id() > 255 {
-            return;
+            return None;
         }
+        let seq = &mut self.seq[side as usize];
         let header = MavHeader {
             system_id: self.cfg.system_id.into(),
             component_id: self.cfg.component_id,
-            sequence: self.seq,
+            sequence: *seq,
         };
-        self.seq = self.seq.wrapping_add(1);
+        *seq = seq.wrapping_add(1);
         let mut bytes = Vec::with_capacity(64);
-        if mavlink::write_versioned_msg(&mut bytes, version, header, msg).is_err() {
-            return;
+        mavlink::write_versioned_msg(&mut bytes, version, header, msg).ok()?;
+        Some(bytes)
+    }
+
+    fn send(&mut self, io: &Links, msg: &MavMessage, now: u64, to: To) {
+        if to != To::Only(Side::Gcs) {
+            if let Some(bytes) = self.encode(msg, Side::Main) {
+                if self.wire(io, bytes, now) {
+                    self.shared.stats.lock().expect("stats lock").frames_sent += 1;
+                }
+            }
         }
+        if to != To::Only(Side::Main) && io.gcs.is_some() {
+            if let Some(bytes) = self.encode(msg, Side::Gcs) {
+                self.to_gcs(io, &bytes, |s| &mut s.gcs_sent);
+            }
+        }
+    }
+
+    /// Send a frame to the ground station as is (no faults on that side), counting it in `counter`.
+    fn to_gcs(&self, io: &Links, bytes: &[u8], counter: fn(&mut SimStats) -> &mut u64) {
+        if io.gcs.as_ref().is_some_and(|g| g.send(bytes)) {
+            *counter(&mut self.shared.stats.lock().expect("stats lock")) += 1;
+        }
+    }
+
+    /// Put a frame on the main transport through the wire's noise; false if the wire dropped it
+    /// or the transport task was behind.
+    fn wire(&mut self, io: &Links, mut bytes: Vec<u8>, now: u64) -> bool {
         let mut stats = self.shared.stats.lock().expect("stats lock");
         match mangle(&mut self.rng, &self.noise, &mut bytes) {
             None => {
                 stats.frames_dropped += 1;
-                return;
+                return false;
             }
             Some(n) if n > 0 => {
                 stats.frames_corrupted += 1;
@@ -538,10 +615,11 @@ impl Engine {
         }
         let at = (instant_at(now) + delay(&mut self.rng, &self.noise)).max(self.last_delivery);
         self.last_delivery = at;
-        match io.out.try_send(Outgoing { at, bytes }) {
-            Ok(()) => stats.frames_sent += 1,
-            Err(_) => stats.frames_overflowed += 1,
+        let queued = io.main.out.try_send(Outgoing { at, bytes }).is_ok();
+        if !queued {
+            stats.frames_overflowed += 1;
         }
+        queued
     }
 
     fn write_truth(&mut self, event: &str, seq: Option<u32>, truth: Truth) {
@@ -555,7 +633,7 @@ impl Engine {
         }
     }
 
-    fn capture(&mut self, io: &LinkIo, mono: u64, why: &str) {
+    fn capture(&mut self, io: &Links, mono: u64, why: &str) {
         self.capture_seq += 1;
         let seq = self.capture_seq;
         let boot_us = self.boot.boot_ns(mono) / 1000;
@@ -563,18 +641,19 @@ impl Engine {
             time_usec: boot_us,
             seq,
         });
-        self.send(io, &msg, mono_ns());
+        self.send(io, &msg, mono_ns(), To::Both);
         let truth = self.shared.truth(mono);
         self.write_truth(why, Some(seq), truth);
         let _ = self.events.send(SimEvent::Capture { mono_ns: mono, seq });
     }
 
-    async fn apply(&mut self, io: &LinkIo, f: Fault) -> u64 {
+    async fn apply(&mut self, io: &Links, f: Fault) -> u64 {
         let now = mono_ns();
         match f {
             Fault::LinkLoss { duration } => {
                 let (tx, rx) = oneshot::channel();
                 if io
+                    .main
                     .ctl
                     .send(LinkCtl::Down { duration, done: tx })
                     .await
@@ -611,28 +690,62 @@ impl Engine {
         now
     }
 
-    fn on_inbound(&mut self, io: &LinkIo, m: Inbound) {
+    /// Addressed to this autopilot: no target, a broadcast, or our own ids.
+    fn for_me(&self, msg: &MavMessage) -> bool {
+        let sys = msg.target_system_id().unwrap_or(0);
+        let comp = msg.target_component_id().unwrap_or(0);
+        (sys == 0 || sys == self.cfg.system_id) && (comp == 0 || comp == self.cfg.component_id)
+    }
+
+    /// Route a frame, then answer it if it is for us. Everything heard on the main transport
+    /// goes to the ground station unchanged; what the station sends goes to the main transport
+    /// (through the wire's faults) unless it is for this autopilot alone. A booting autopilot
+    /// (`quiet_until`) neither routes nor answers.
+    fn on_inbound(&mut self, io: &Links, from: Side, m: Inbound) {
         let Inbound {
             mono_ns: now,
             header,
             msg,
+            raw,
         } = m;
-        let command = match &msg {
-            MavMessage::COMMAND_LONG(c) => Some(c.command as u32),
-            MavMessage::COMMAND_INT(c) => Some(c.command as u32),
-            _ => None,
-        };
-        self.shared.stats.lock().expect("stats lock").received += 1;
-        let _ = self.events.send(SimEvent::Received {
-            mono_ns: now,
-            system_id: header.system_id as u8,
-            component_id: header.component_id,
-            msg_id: msg.message_id(),
-            command,
-        });
+        if let (Side::Main, Some(msg)) = (from, &msg) {
+            let command = match msg {
+                MavMessage::COMMAND_LONG(c) => Some(c.command as u32),
+                MavMessage::COMMAND_INT(c) => Some(c.command as u32),
+                _ => None,
+            };
+            self.shared.stats.lock().expect("stats lock").received += 1;
+            let _ = self.events.send(SimEvent::Received {
+                mono_ns: now,
+                system_id: header.system_id as u8,
+                component_id: header.component_id,
+                msg_id: msg.message_id(),
+                command,
+            });
+        }
         if now < self.quiet_until {
             return;
         }
+        match from {
+            Side::Main => self.to_gcs(io, &raw, |s| &mut s.forwarded_to_gcs),
+            Side::Gcs => {
+                let only_me = msg.as_ref().is_some_and(|m| {
+                    m.target_system_id() == Some(self.cfg.system_id)
+                        && m.target_component_id() == Some(self.cfg.component_id)
+                });
+                if !only_me && self.wire(io, raw, now) {
+                    self.shared
+                        .stats
+                        .lock()
+                        .expect("stats lock")
+                        .forwarded_from_gcs += 1;
+                }
+            }
+        }
+        let Some(msg) = msg.filter(|m| self.for_me(m)) else {
+            return;
+        };
+        let back = To::Only(from);
         match msg {
             MavMessage::TIMESYNC(t) if t.tc1 == 0 => {
                 let reply = MavMessage::TIMESYNC(TIMESYNC_DATA {
@@ -641,11 +754,9 @@ impl Engine {
                     target_system: header.system_id as u8,
                     target_component: header.component_id,
                 });
-                self.send(io, &reply, mono_ns());
+                self.send(io, &reply, mono_ns(), back);
             }
-            MavMessage::COMMAND_LONG(c)
-                if c.target_system == self.cfg.system_id || c.target_system == 0 =>
-            {
+            MavMessage::COMMAND_LONG(c) => {
                 let result = self.command(io, &c, now);
                 let ack = MavMessage::COMMAND_ACK(COMMAND_ACK_DATA {
                     command: c.command,
@@ -654,7 +765,7 @@ impl Engine {
                     target_component: header.component_id,
                     ..Default::default()
                 });
-                self.send(io, &ack, mono_ns());
+                self.send(io, &ack, mono_ns(), back);
                 if c.command == MavCmd::MAV_CMD_REQUEST_MESSAGE
                     && result == MavResult::MAV_RESULT_ACCEPTED
                 {
@@ -666,7 +777,7 @@ impl Engine {
         }
     }
 
-    fn command(&mut self, io: &LinkIo, c: &COMMAND_LONG_DATA, now: u64) -> MavResult {
+    fn command(&mut self, io: &Links, c: &COMMAND_LONG_DATA, now: u64) -> MavResult {
         let stream = |id: f32| STREAM_IDS.iter().position(|s| *s as f32 == id);
         match c.command {
             MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL => {

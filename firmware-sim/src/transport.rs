@@ -1,13 +1,14 @@
 //! The simulator's side of the wire: one task owns the transport (pty, serial, UDP or TCP),
 //! writes outgoing frames at their delivery instants, decodes incoming ones, and takes the link
 //! down and up again on command (a new pty behind the same symlink; the same port otherwise).
+//! The optional ground-station side is a plain UDP socket with no faults and no link loss.
 
 use crate::clock::mono_ns;
 use crate::config::Transport;
 use crate::pty::{relink, Pty, PtyWriter};
 use crate::SimEvent;
 use mavlink::dialects::common::MavMessage;
-use mavlink::{AsyncMavlinkReader, MavHeader};
+use mavlink::{AsyncMavlinkReader, MAVLinkMessageRaw, MavHeader, Message};
 use std::io;
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -27,7 +28,11 @@ pub(crate) struct Outgoing {
 pub(crate) struct Inbound {
     pub mono_ns: u64,
     pub header: MavHeader,
-    pub msg: MavMessage,
+    /// `None` when the CRC holds but the payload does not parse (an enum value this dialect
+    /// lacks): such a frame is still forwarded.
+    pub msg: Option<MavMessage>,
+    /// The frame exactly as it arrived, for forwarding unchanged.
+    pub raw: Vec<u8>,
 }
 
 pub(crate) enum LinkCtl {
@@ -161,18 +166,7 @@ impl Endpoint {
                 let sock = Arc::new(UdpSocket::bind(&addr).await?);
                 self.bound = Some(sock.local_addr()?);
                 let peer = Arc::new(Mutex::new(None));
-                let (pipe_w, pipe_r) = tokio::io::duplex(1 << 16);
-                let (s2, p2) = (sock.clone(), peer.clone());
-                tokio::spawn(async move {
-                    let mut pipe_w = pipe_w;
-                    let mut buf = vec![0u8; 65_536];
-                    while let Ok((n, from)) = s2.recv_from(&mut buf).await {
-                        *p2.lock().expect("peer lock") = Some(from);
-                        if pipe_w.write_all(&buf[..n]).await.is_err() {
-                            break;
-                        }
-                    }
-                });
+                let (pipe_r, _) = udp_pump(sock.clone(), Some(peer.clone()));
                 Ok(Some(Opened {
                     tx: Tx::Udp(sock, peer),
                     rx: Box::new(pipe_r),
@@ -215,26 +209,104 @@ impl Endpoint {
     }
 }
 
+/// Datagrams from `sock` as a byte stream for the frame decoder; with `peer`, replies follow
+/// the last sender.
+fn udp_pump(
+    sock: Arc<UdpSocket>,
+    peer: Option<Arc<Mutex<Option<SocketAddr>>>>,
+) -> (tokio::io::DuplexStream, JoinHandle<()>) {
+    let (mut pipe_w, pipe_r) = tokio::io::duplex(1 << 16);
+    let task = tokio::spawn(async move {
+        let mut buf = vec![0u8; 65_536];
+        while let Ok((n, from)) = sock.recv_from(&mut buf).await {
+            if let Some(p) = &peer {
+                *p.lock().expect("peer lock") = Some(from);
+            }
+            if pipe_w.write_all(&buf[..n]).await.is_err() {
+                break;
+            }
+        }
+    });
+    (pipe_r, task)
+}
+
 fn spawn_reader(rx: BoxRead, inbound: mpsc::Sender<Inbound>) -> JoinHandle<()> {
     tokio::spawn(async move {
         let mut reader = AsyncMavlinkReader::new(rx);
         loop {
-            match reader.read_any_message::<MavMessage>().await {
-                Ok((header, msg)) => {
-                    let m = Inbound {
-                        mono_ns: mono_ns(),
-                        header,
-                        msg,
-                    };
-                    if inbound.send(m).await.is_err() {
-                        return;
-                    }
-                }
-                Err(mavlink::error::MessageReadError::Parse(_)) => continue,
-                Err(_) => return,
+            // Raw first (CRC checked against the common dialect), so the bytes can be forwarded.
+            let Ok(raw) = reader.read_any_raw_message::<MavMessage>().await else {
+                return;
+            };
+            let bytes = match &raw {
+                MAVLinkMessageRaw::V1(f) => f.raw_bytes().to_vec(),
+                MAVLinkMessageRaw::V2(f) => f.raw_bytes().to_vec(),
+            };
+            let m = Inbound {
+                mono_ns: mono_ns(),
+                header: MavHeader {
+                    system_id: raw.system_id(),
+                    component_id: raw.component_id(),
+                    sequence: raw.sequence(),
+                },
+                msg: MavMessage::parse(raw.version(), raw.message_id(), raw.payload()).ok(),
+                raw: bytes,
+            };
+            if inbound.send(m).await.is_err() {
+                return;
             }
         }
     })
+}
+
+/// The ground-station port: a UDP socket sending to the station's address (`udpout:`, the
+/// station listens) and decoding whatever datagrams come back. The engine sends with
+/// `try_send_to` (UDP never waits long); the tasks stop when this is dropped.
+pub(crate) struct GcsLink {
+    sock: Arc<UdpSocket>,
+    to: SocketAddr,
+    pub inbound: mpsc::Receiver<Inbound>,
+    pump: JoinHandle<()>,
+    reader: JoinHandle<()>,
+}
+
+impl GcsLink {
+    /// `address` is `udpout:HOST:PORT` (checked by the config).
+    pub(crate) async fn open(address: &str) -> io::Result<GcsLink> {
+        let host_port = address.strip_prefix("udpout:").unwrap_or(address);
+        let to = tokio::net::lookup_host(host_port)
+            .await?
+            .next()
+            .ok_or_else(|| io::Error::new(io::ErrorKind::NotFound, "no address"))?;
+        let local: SocketAddr = match to {
+            SocketAddr::V4(a) if a.ip().is_loopback() => (*a.ip(), 0).into(),
+            SocketAddr::V4(_) => ([0, 0, 0, 0], 0).into(),
+            SocketAddr::V6(_) => (std::net::Ipv6Addr::UNSPECIFIED, 0).into(),
+        };
+        let sock = Arc::new(UdpSocket::bind(local).await?);
+        let (pipe_r, pump) = udp_pump(sock.clone(), None);
+        let (in_tx, inbound) = mpsc::channel(512);
+        let reader = spawn_reader(Box::new(pipe_r), in_tx);
+        Ok(GcsLink {
+            sock,
+            to,
+            inbound,
+            pump,
+            reader,
+        })
+    }
+
+    /// Send one frame now; false if it could not go (nobody listening is not an error for UDP).
+    pub(crate) fn send(&self, bytes: &[u8]) -> bool {
+        self.sock.try_send_to(bytes, self.to).is_ok()
+    }
+}
+
+impl Drop for GcsLink {
+    fn drop(&mut self) {
+        self.pump.abort();
+        self.reader.abort();
+    }
 }
 
 pub(crate) struct LinkIo {

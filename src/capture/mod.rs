@@ -10,7 +10,8 @@ pub mod store;
 pub mod tlog;
 
 pub use exif::{
-    encode_capture, encode_jpeg, encode_png, exif_app1, parse_exif_gps, ExifGps, ImageError,
+    encode_capture, encode_jpeg, encode_png, exif_app1, find_exif_app1, parse_exif_gps, ExifGps,
+    ImageError,
 };
 pub use export::{camera_to_world_gl, geo_txt, transforms, write_exports, ExportSummary};
 pub use record::{
@@ -19,6 +20,6 @@ pub use record::{
 };
 pub use store::{
     log_capture, parse_manifest, read_manifest, CaptureStore, DirStore, FillingStore, LogError,
-    Manifest, MemStore, StoreError,
+    Manifest, MemStore, StoreError, MANIFEST, TELEMETRY,
 };
 pub use tlog::{TlogEntry, TlogWriter};

@@ -161,6 +161,10 @@ impl<S: CaptureStore> TlogWriter<S> {
         Ok(())
     }
 
+    pub fn store_mut(&mut self) -> &mut S {
+        &mut self.store
+    }
+
     pub fn store(&self) -> &S {
         &self.store
     }

@@ -14,6 +14,7 @@ pub const ALLOWED_MESSAGES: &[(u32, &str)] = &[
     (253, "STATUSTEXT"),
     (259, "CAMERA_INFORMATION"),
     (260, "CAMERA_SETTINGS"),
+    (261, "STORAGE_INFORMATION"),
     (262, "CAMERA_CAPTURE_STATUS"),
     (263, "CAMERA_IMAGE_CAPTURED"),
 ];
@@ -71,5 +72,15 @@ mod tests {
         assert_eq!(may_send(76, None), Err(Refusal::Command(u32::MAX)));
         assert_eq!(may_send(76, Some(511)), Ok(()));
         assert_eq!(may_send(0, None), Ok(()));
+    }
+
+    #[test]
+    fn camera_protocol_messages_are_allowed() {
+        // What `daemon::camera` sends (its own test drives the protocol through every
+        // path): COMMAND_ACK, NAMED_VALUE_FLOAT, STATUSTEXT, CAMERA_INFORMATION,
+        // CAMERA_SETTINGS, STORAGE_INFORMATION, CAMERA_CAPTURE_STATUS, CAMERA_IMAGE_CAPTURED.
+        for id in [77, 251, 253, 259, 260, 261, 262, 263] {
+            assert_eq!(may_send(id, None), Ok(()), "{id}");
+        }
     }
 }

@@ -5,6 +5,7 @@
 pub mod allowlist;
 pub mod backoff;
 pub mod depth;
+pub mod distset;
 pub mod estimate;
 pub mod geo;
 pub mod glitch;

@@ -5,6 +5,9 @@
 //! limit can hold it back; the interval is then marked under-sampled, never
 //! hidden.
 
+/// Relative slack of the rate limit (see [`Trigger::update`]).
+pub const RATE_TOLERANCE: f64 = 0.02;
+
 /// Trigger settings, validated by the caller's config.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TriggerParams {
@@ -72,6 +75,8 @@ pub struct Trigger {
     tightest_m: f64,
     rate_limited: bool,
     fallback: bool,
+    /// The spacing at the previous opportunity, for the trend.
+    previous_m: Option<f64>,
 }
 
 impl Trigger {
@@ -82,6 +87,7 @@ impl Trigger {
             tightest_m: f64::INFINITY,
             rate_limited: false,
             fallback: false,
+            previous_m: None,
         }
     }
 
@@ -103,6 +109,14 @@ impl Trigger {
             }
         };
         self.tightest_m = self.tightest_m.min(spacing);
+        // A falling spacing keeps falling until the next opportunity: expect
+        // it one step further down (linearly, at most halving), so the capture
+        // comes before the interval outgrows it, not one frame after.
+        let expected_next = match self.previous_m {
+            Some(prev) if spacing < prev => (2.0 * spacing - prev).max(0.5 * spacing),
+            _ => spacing,
+        };
+        self.previous_m = Some(spacing);
         let Some((t_last, odo_last)) = self.last else {
             return Decision::Capture(self.fire(o, None));
         };
@@ -110,14 +124,15 @@ impl Trigger {
         let next = travelled + o.next_step_m.max(0.0);
         // The same relative tolerance as the under-sampled flag, so rounding in
         // the odometer neither fires a frame early nor flags an exact interval.
-        let limit = self.tightest_m * (1.0 - self.params.margin) * (1.0 + 1e-9);
+        let limit = self.tightest_m.min(expected_next) * (1.0 - self.params.margin) * (1.0 + 1e-9);
         if next <= limit {
             return Decision::Wait;
         }
-        // Due. The rate limit may hold it back; compare with a relative
-        // tolerance so a frame clock exactly at the rate is not refused.
+        // Due. The rate limit may hold it back. Frame clocks are rounded to
+        // the nanosecond and jitter by a fraction of a millisecond: a frame
+        // up to 2 % early against the limit still counts as at the rate.
         let min_period = 1.0 / self.params.rate_max_hz;
-        if o.time_s - t_last < min_period * (1.0 - 1e-9) {
+        if o.time_s - t_last < min_period * (1.0 - RATE_TOLERANCE) {
             self.rate_limited = true;
             return Decision::Wait;
         }
@@ -224,6 +239,52 @@ mod tests {
             .iter()
             .all(|c| c.1.undersampled && c.1.rate_limited));
         assert_eq!(Trigger::new(p).speed_advice_mps(0.1), 3.0);
+    }
+
+    #[test]
+    fn a_steadily_falling_spacing_is_met_at_every_frame() {
+        // Spacing falls 4.7 cm per 10 cm flown: without looking one step ahead
+        // the frame that is due sees a spacing already smaller than the
+        // distance flown.
+        let caps = fly(TriggerParams::default(), 10.0, 0.01, 10.0, |x| {
+            (3.03 - 0.47 * x).max(0.4)
+        });
+        assert!(caps.len() > 5);
+        for w in caps.windows(2) {
+            let d = w[1].0 - w[0].0;
+            let tightest = (3.03 - 0.47 * w[1].0).max(0.4);
+            assert!(
+                d <= tightest * (1.0 + 1e-9),
+                "{d} > {tightest} at {}",
+                w[1].0
+            );
+            assert!(!w[1].1.undersampled);
+        }
+    }
+
+    #[test]
+    fn frames_at_exactly_the_rate_limit_are_not_held_back() {
+        // 30 fps stamped to the nanosecond (33 333 333 ns, a hair under 1/30 s)
+        // with the limit at 30/s and a spacing shorter than a frame step: every
+        // frame captures, none is marked rate-limited.
+        let p = TriggerParams {
+            rate_max_hz: 30.0,
+            ..TriggerParams::default()
+        };
+        let mut t = Trigger::new(p);
+        let mut caps = 0;
+        for k in 0..60u64 {
+            let time_s = (k * 33_333_333) as f64 * 1e-9;
+            let x = k as f64 * 0.333;
+            match t.update(&opp(time_s, x, 0.333, Some(0.3))) {
+                Decision::Capture(c) => {
+                    caps += 1;
+                    assert!(!c.rate_limited, "frame {k}");
+                }
+                d => panic!("frame {k}: {d:?}"),
+            }
+        }
+        assert_eq!(caps, 60);
     }
 
     #[test]

@@ -9,7 +9,7 @@ use crate::capture::{
 };
 use crate::core::geo::LocalFrame;
 use crate::core::pose::Pose;
-use crate::core::trigger::{Decision, Opportunity, Trigger, TriggerParams};
+use crate::core::trigger::{Capture, Decision, Opportunity, Trigger, TriggerParams};
 use crate::core::{DepthImage, Estimate, Estimator, EstimatorParams, Intrinsics};
 use glam::EulerRot;
 
@@ -84,6 +84,19 @@ impl Pipeline {
         self.odometer_m
     }
 
+    /// Continue numbering after the captures already in a flight's manifest.
+    pub fn set_last_seq(&mut self, seq: u64) {
+        self.seq = seq;
+    }
+
+    pub fn params(&self) -> &StepParams {
+        &self.params
+    }
+
+    pub fn model(&self) -> &'static str {
+        self.estimator.params().model.as_str()
+    }
+
     pub fn on_frame(&mut self, f: FrameInput) -> StepOutcome {
         let pose = match f.pose {
             Ok(p) if p.pos_ned_m.is_finite() && p.q.is_finite() => p,
@@ -100,7 +113,7 @@ impl Pipeline {
             self.odometer_m += (ne[0] - last[0]).hypot(ne[1] - last[1]);
         }
         self.last_ne_m = Some(ne);
-        let (yaw, pitch, roll) = pose.q.to_euler(EulerRot::ZYX);
+        let (_, pitch, _) = pose.q.to_euler(EulerRot::ZYX);
         // A belly camera tilts forward as the nose goes up.
         let camera_pitch = self.params.camera_mount_pitch_rad + pitch;
         let estimate = match self.estimator.estimate(f.depth, f.intrinsics, camera_pitch) {
@@ -133,69 +146,109 @@ impl Pipeline {
             }
         };
         self.seq += 1;
-        let geo = self.local.to_geodetic(pose.pos_ned_m.to_array());
-        let home_alt = self.local.home().alt_m;
-        let (cx, cy) = f.intrinsics.principal_px();
-        let record = CaptureRecord {
+        let record = capture_record(&RecordInputs {
             seq: self.seq,
-            image: self
-                .params
-                .image_format
-                .map(|fmt| image_file_name(self.seq, fmt)),
-            time_boot_us: f.boot_us.unwrap_or(0),
-            time_unix_us: f.unix_us,
             mono_ns: f.mono_ns,
-            position: Position {
-                lat_deg: geo.lat_deg,
-                lon_deg: geo.lon_deg,
-                alt_m: geo.alt_m,
-                rel_alt_m: geo.alt_m - home_alt,
-                east_m: pose.pos_ned_m.y,
-                north_m: pose.pos_ned_m.x,
-                up_m: -pose.pos_ned_m.z,
-            },
-            attitude: Attitude {
-                roll_deg: roll.to_degrees(),
-                pitch_deg: pitch.to_degrees(),
-                yaw_deg: yaw.to_degrees().rem_euclid(360.0),
-                camera_pitch_deg: self.params.camera_mount_pitch_rad.to_degrees(),
-            },
-            spacing: Spacing {
-                permissible_m: estimate.spacing.permissible_m,
-                chosen_m: capture.spacing_m,
-                active_bound: estimate
-                    .active_bound
-                    .map_or_else(|| "fallback".to_string(), |b| b.as_str().to_string()),
-            },
-            distance_since_last_m: capture.distance_since_last_m,
-            occlusion: estimate.occlusion.map(|o| Occlusion {
-                density_per_m: o.density_per_m,
-                degree: o.degree,
-            }),
-            terms: estimate
-                .terms
-                .names()
-                .iter()
-                .map(|t| t.to_string())
-                .collect(),
-            model: self.estimator.params().model.as_str().to_string(),
-            capture_mode: self.params.capture_mode,
-            undersampled: capture.undersampled,
-            rate_limited: capture.rate_limited,
-            fallback: capture.fallback,
-            pose_age_ms: pose.extrapolated_ns as f64 * 1e-6,
-            intrinsics: self.params.image_format.map(|_| CameraIntrinsics {
-                width: f.intrinsics.width() as u32,
-                height: f.intrinsics.height() as u32,
-                focal_px: f.intrinsics.focal_px(),
-                cx_px: cx,
-                cy_px: cy,
-            }),
-        };
+            pose: &pose,
+            boot_us: f.boot_us,
+            unix_us: f.unix_us,
+            local: &self.local,
+            estimate: Some(&estimate),
+            capture: &capture,
+            model: self.estimator.params().model.as_str(),
+            mode: self.params.capture_mode,
+            image_format: self.params.image_format,
+            intrinsics: Some(f.intrinsics),
+            mount_pitch_rad: self.params.camera_mount_pitch_rad,
+        });
         StepOutcome::Capture {
             estimate: Box::new(estimate),
             record: Box::new(record),
         }
+    }
+}
+
+/// What a capture record is made of.
+pub struct RecordInputs<'a> {
+    pub seq: u64,
+    pub mono_ns: u64,
+    pub pose: &'a Pose,
+    pub boot_us: Option<u64>,
+    pub unix_us: Option<u64>,
+    pub local: &'a LocalFrame,
+    /// The estimate in force (`None`: the fallback spacing decided).
+    pub estimate: Option<&'a Estimate>,
+    pub capture: &'a Capture,
+    pub model: &'a str,
+    pub mode: CaptureMode,
+    /// Set when alfd saves the frame itself.
+    pub image_format: Option<ImageFormat>,
+    pub intrinsics: Option<&'a Intrinsics>,
+    pub mount_pitch_rad: f64,
+}
+
+/// One manifest line from the pose, the estimate and the trigger's capture.
+pub fn capture_record(r: &RecordInputs) -> CaptureRecord {
+    let pose = r.pose;
+    let (yaw, pitch, roll) = pose.q.to_euler(EulerRot::ZYX);
+    let geo = r.local.to_geodetic(pose.pos_ned_m.to_array());
+    let home_alt = r.local.home().alt_m;
+    CaptureRecord {
+        seq: r.seq,
+        image: r.image_format.map(|fmt| image_file_name(r.seq, fmt)),
+        time_boot_us: r.boot_us.unwrap_or(0),
+        time_unix_us: r.unix_us,
+        mono_ns: r.mono_ns,
+        position: Position {
+            lat_deg: geo.lat_deg,
+            lon_deg: geo.lon_deg,
+            alt_m: geo.alt_m,
+            rel_alt_m: geo.alt_m - home_alt,
+            east_m: pose.pos_ned_m.y,
+            north_m: pose.pos_ned_m.x,
+            up_m: -pose.pos_ned_m.z,
+        },
+        attitude: Attitude {
+            roll_deg: roll.to_degrees(),
+            pitch_deg: pitch.to_degrees(),
+            yaw_deg: yaw.to_degrees().rem_euclid(360.0),
+            camera_pitch_deg: r.mount_pitch_rad.to_degrees(),
+        },
+        spacing: Spacing {
+            permissible_m: r.estimate.and_then(|e| e.spacing.permissible_m),
+            chosen_m: r.capture.spacing_m,
+            active_bound: r
+                .estimate
+                .and_then(|e| e.active_bound)
+                .map_or_else(|| "fallback".to_string(), |b| b.as_str().to_string()),
+        },
+        distance_since_last_m: r.capture.distance_since_last_m,
+        occlusion: r.estimate.and_then(|e| e.occlusion).map(|o| Occlusion {
+            density_per_m: o.density_per_m,
+            degree: o.degree,
+        }),
+        terms: r.estimate.map_or_else(Vec::new, |e| {
+            e.terms.names().iter().map(|t| t.to_string()).collect()
+        }),
+        model: r.model.to_string(),
+        capture_mode: r.mode,
+        undersampled: r.capture.undersampled,
+        rate_limited: r.capture.rate_limited,
+        fallback: r.capture.fallback,
+        pose_age_ms: pose.extrapolated_ns as f64 * 1e-6,
+        intrinsics: match (r.image_format, r.intrinsics) {
+            (Some(_), Some(i)) => {
+                let (cx, cy) = i.principal_px();
+                Some(CameraIntrinsics {
+                    width: i.width() as u32,
+                    height: i.height() as u32,
+                    focal_px: i.focal_px(),
+                    cx_px: cx,
+                    cy_px: cy,
+                })
+            }
+            _ => None,
+        },
     }
 }
 

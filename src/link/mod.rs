@@ -11,7 +11,7 @@ mod task;
 pub use clock::mono_ns;
 pub use config::{LinkConfig, LinkConfigError, RawLinkConfig};
 pub use state::PoseQueryError;
-pub use task::{new, Link, LinkError};
+pub use task::{new, Link, LinkError, TapFrame};
 
 use crate::core::geo::Geodetic;
 use crate::core::pose::Pose;
@@ -93,6 +93,14 @@ pub enum LinkEvent {
     CameraTrigger {
         seq: u32,
         time_boot_us: u64,
+        /// The same instant on this machine's monotonic clock, when time is in sync.
+        mono_ns: Option<u64>,
+    },
+    /// The autopilot answered one of our camera commands.
+    CommandAck {
+        command: u32,
+        /// MAV_RESULT (0 = accepted).
+        result: u8,
     },
     /// A COMMAND_LONG addressed to us from an accepted system.
     Command {

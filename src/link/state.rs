@@ -239,10 +239,25 @@ impl Tracker {
                 self.pending_rates.pop_front();
                 self.health.rates_acked = self.pending_rates.is_empty();
             }
-            MavMessage::CAMERA_TRIGGER(c) => {
+            MavMessage::CAMERA_TRIGGER(c) if from_autopilot => {
                 out.push(Reaction::Event(LinkEvent::CameraTrigger {
                     seq: c.seq,
                     time_boot_us: c.time_usec,
+                    mono_ns: self.sync.remote_to_local(c.time_usec.saturating_mul(1000)),
+                }));
+            }
+            MavMessage::COMMAND_ACK(a)
+                if from_autopilot
+                    && matches!(
+                        a.command,
+                        MavCmd::MAV_CMD_DO_SET_CAM_TRIGG_DIST
+                            | MavCmd::MAV_CMD_IMAGE_START_CAPTURE
+                            | MavCmd::MAV_CMD_DO_DIGICAM_CONTROL
+                    ) =>
+            {
+                out.push(Reaction::Event(LinkEvent::CommandAck {
+                    command: a.command as u32,
+                    result: a.result as u8,
                 }));
             }
             MavMessage::COMMAND_LONG(c)
@@ -295,7 +310,14 @@ impl Tracker {
             self.health.rejected_position += 1;
             return;
         }
-        let frame = *self.frame.get_or_insert_with(|| LocalFrame::new(g));
+        // Home: where the first fix was, at the ground the autopilot measures
+        // relative altitude from (alfd may start in the air).
+        let frame = *self.frame.get_or_insert_with(|| {
+            LocalFrame::new(Geodetic {
+                alt_m: g.alt_m - p.relative_alt as f64 * 1e-3,
+                ..g
+            })
+        });
         let pos = DVec3::from_array(frame.to_ned(g));
         let vel = DVec3::new(p.vx as f64, p.vy as f64, p.vz as f64) * 0.01;
         let time_ns = p.time_boot_ms as u64 * 1_000_000;

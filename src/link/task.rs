@@ -39,6 +39,14 @@ enum Rx {
     Closed,
 }
 
+/// One received message, re-encoded as a MAVLink 2 frame (same header: system,
+/// component, sequence), for `telemetry.tlog`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TapFrame {
+    pub mono_ns: u64,
+    pub bytes: Vec<u8>,
+}
+
 /// The link task, before it runs.
 pub struct Link {
     cfg: LinkConfig,
@@ -48,6 +56,8 @@ pub struct Link {
     commands: mpsc::Receiver<Command>,
     events: mpsc::Sender<LinkEvent>,
     rate_tries: u32,
+    tap: Option<mpsc::Sender<TapFrame>>,
+    tap_dropped: u64,
 }
 
 /// Build the link: the task to run, the handle for the rest of the daemon, and its events.
@@ -64,6 +74,8 @@ pub fn new(cfg: LinkConfig) -> (Link, LinkHandle, mpsc::Receiver<LinkEvent>) {
         commands,
         events,
         rate_tries: 0,
+        tap: None,
+        tap_dropped: 0,
     };
     (
         link,
@@ -92,6 +104,12 @@ async fn read_loop(conn: Conn, tx: mpsc::Sender<Rx>, read_timeout: Duration) {
 }
 
 impl Link {
+    /// Copy every received message to `tap` (never blocking the link: a full
+    /// tap drops frames and counts them in `LinkHealth::events_dropped`).
+    pub fn set_tap(&mut self, tap: mpsc::Sender<TapFrame>) {
+        self.tap = Some(tap);
+    }
+
     /// Run until `shutdown` resolves.
     pub async fn run(mut self, shutdown: impl Future<Output = ()>) -> Result<(), LinkError> {
         if let Err(e) = mavlink::ConnectionAddress::parse_address(&self.cfg.address) {
@@ -218,6 +236,20 @@ impl Link {
     }
 
     async fn on_message(&mut self, conn: &Conn, h: &MavHeader, m: &MavMessage, rx_ns: u64) {
+        if let Some(tap) = &self.tap {
+            let mut bytes = Vec::with_capacity(64);
+            if mavlink::write_v2_msg(&mut bytes, *h, m).is_ok()
+                && tap
+                    .try_send(TapFrame {
+                        mono_ns: rx_ns,
+                        bytes,
+                    })
+                    .is_err()
+            {
+                self.tap_dropped += 1;
+                self.tracker.health.events_dropped += 1;
+            }
+        }
         let mut publish = false;
         for r in self.tracker.on_message(h, m, rx_ns) {
             match r {

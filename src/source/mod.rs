@@ -59,3 +59,77 @@ pub trait DepthSource: Send {
     /// The next depth frame, blocking until it arrives; `None` at the end.
     fn next_depth(&mut self) -> Result<Option<Stamped<DepthImage>>, SourceError>;
 }
+
+/// The colour frame for a capture decided at an instant: the nearest a camera
+/// delivered, or (synthetic) one rendered at that instant. Called off the
+/// trigger path, by the capture writer.
+pub trait FrameAt: Send {
+    fn frame_at(&mut self, mono_ns: u64) -> Option<Stamped<ColorImage>>;
+}
+
+/// The last few frames of a streaming camera, fed by its thread; `frame_at`
+/// picks the nearest one within `tolerance_ns`.
+#[derive(Clone)]
+pub struct FrameRing {
+    inner: std::sync::Arc<std::sync::Mutex<std::collections::VecDeque<Stamped<ColorImage>>>>,
+    capacity: usize,
+    tolerance_ns: u64,
+}
+
+impl FrameRing {
+    pub fn new(capacity: usize, tolerance_ns: u64) -> Self {
+        FrameRing {
+            inner: Default::default(),
+            capacity: capacity.max(1),
+            tolerance_ns,
+        }
+    }
+
+    pub fn push(&self, f: Stamped<ColorImage>) {
+        let mut q = self.inner.lock().unwrap_or_else(|p| p.into_inner());
+        while q.len() >= self.capacity {
+            q.pop_front();
+        }
+        q.push_back(f);
+    }
+}
+
+impl FrameAt for FrameRing {
+    fn frame_at(&mut self, mono_ns: u64) -> Option<Stamped<ColorImage>> {
+        let q = self.inner.lock().unwrap_or_else(|p| p.into_inner());
+        q.iter()
+            .min_by_key(|f| f.mono_ns.abs_diff(mono_ns))
+            .filter(|f| f.mono_ns.abs_diff(mono_ns) <= self.tolerance_ns)
+            .cloned()
+    }
+}
+
+#[cfg(test)]
+mod ring_tests {
+    use super::*;
+
+    fn frame(mono_ns: u64) -> Stamped<ColorImage> {
+        Stamped {
+            mono_ns,
+            seq: mono_ns,
+            data: ColorImage {
+                width: 1,
+                height: 1,
+                rgb: vec![0; 3],
+            },
+        }
+    }
+
+    #[test]
+    fn the_nearest_frame_within_tolerance_or_none() {
+        let mut r = FrameRing::new(3, 20);
+        for t in [100, 133, 166, 200] {
+            r.push(frame(t));
+        }
+        // 100 was pushed out by capacity 3.
+        assert_eq!(r.frame_at(140).map(|f| f.mono_ns), Some(133));
+        assert_eq!(r.frame_at(190).map(|f| f.mono_ns), Some(200));
+        assert_eq!(r.frame_at(100), None);
+        assert_eq!(r.frame_at(260), None);
+    }
+}

@@ -3,9 +3,9 @@
 //! works against any autopilot), with a RealSense-like sensor model. The clock
 //! is injected, so tests and replays run without waiting.
 
-use super::{DepthSource, SourceError, Stamped};
+use super::{ColorImage, DepthSource, FrameAt, SourceError, Stamped};
 use crate::core::{DepthImage, Intrinsics};
-use crate::render::{render_depth, Camera, Frame, SensorModel};
+use crate::render::{render, render_depth, Camera, Frame, RenderOptions, SensorModel};
 use crate::scene::Scene;
 use std::sync::Arc;
 
@@ -129,6 +129,75 @@ impl<P: PoseAt, C: Clock> DepthSource for SyntheticDepth<P, C> {
             seq,
             data: frame.z16(&sensor),
         }))
+    }
+}
+
+/// The synthetic colour camera: renders the scene at the pose of the instant
+/// asked for (a capture's), so only captured frames cost a render.
+pub struct SyntheticColor<P> {
+    scene: Arc<Scene>,
+    intrinsics: Intrinsics,
+    options: RenderOptions,
+    pose: P,
+    seq: u64,
+    /// Its own single thread: a colour render (several depth frames' worth)
+    /// must not take the cores the depth camera's frames are rendered on,
+    /// or the depth camera would miss frames a real one delivers.
+    pool: Option<rayon::ThreadPool>,
+}
+
+impl<P: PoseAt> SyntheticColor<P> {
+    pub fn new(scene: Arc<Scene>, intrinsics: Intrinsics, supersample: usize, pose: P) -> Self {
+        SyntheticColor {
+            scene,
+            intrinsics,
+            options: RenderOptions {
+                supersample: supersample.max(1),
+            },
+            pose,
+            seq: 0,
+            pool: rayon::ThreadPoolBuilder::new()
+                .num_threads(1)
+                .thread_name(|_| "alfd-synth-color".into())
+                .start_handler(|_| lower_this_threads_priority())
+                .build()
+                .ok(),
+        }
+    }
+}
+
+/// Nice 19 for the calling thread (Linux keeps a nice value per thread): the
+/// colour renders queue behind the depth stream instead of delaying it.
+fn lower_this_threads_priority() {
+    // SAFETY: setpriority takes plain integers and touches no memory of ours;
+    // who = 0 is the calling thread. Failure only leaves the priority as is.
+    unsafe {
+        libc::setpriority(libc::PRIO_PROCESS, 0, 19);
+    }
+}
+
+impl<P: PoseAt> FrameAt for SyntheticColor<P> {
+    fn frame_at(&mut self, mono_ns: u64) -> Option<Stamped<ColorImage>> {
+        let pose = self.pose.pose_at(mono_ns)?;
+        let camera = Camera {
+            position_m: pose.position_m,
+            pitch_rad: pose.pitch_rad,
+            intrinsics: self.intrinsics,
+        };
+        let frame = match &self.pool {
+            Some(pool) => pool.install(|| render(&self.scene, &camera, &self.options)),
+            None => render(&self.scene, &camera, &self.options),
+        };
+        self.seq += 1;
+        Some(Stamped {
+            mono_ns,
+            seq: self.seq,
+            data: ColorImage {
+                width: frame.width,
+                height: frame.height,
+                rgb: frame.rgb8(),
+            },
+        })
     }
 }
 

@@ -1,0 +1,2 @@
+//! The daemon load benchmark: being written.
+fn main() {}

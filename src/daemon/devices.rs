@@ -1,0 +1,185 @@
+//! Opening the devices a config names, for `alfd run`: V4L2 (feature `v4l2`),
+//! a recording (once as recorded, or live: paced, re-stamped, looping), or the
+//! synthetic cameras following the telemetry pose (a synthetic camera at the
+//! simulator's truth only exists inside `alfd sim`).
+
+use super::run::{Devices, Frames};
+use crate::config::{Config, SimPose, SourceConfig, SourceKind};
+use crate::core::Intrinsics;
+use crate::link::LinkHandle;
+use crate::render::SensorModel;
+use crate::scene::Scene;
+use crate::source::recorded::Recording;
+use crate::source::synthetic::{CameraPose, MonotonicClock, SyntheticColor, SyntheticDepth};
+use crate::source::{DepthSource, FrameSource};
+use std::path::Path;
+use std::sync::{Arc, OnceLock};
+
+/// Where the telemetry pose comes from once the link exists.
+pub type LinkSlot = Arc<OnceLock<LinkHandle>>;
+
+fn intrinsics(s: &SourceConfig) -> Result<Intrinsics, String> {
+    Intrinsics::from_hfov_deg(s.width, s.height, s.hfov_deg, s.principal_px)
+        .map_err(|e| format!("intrinsics: {e}"))
+}
+
+/// The synthetic camera's pose from the telemetry (scene x = north from the
+/// line's start, y = west, z = up), or `None` while there is none.
+pub fn telemetry_pose(
+    scene: Arc<Scene>,
+    mount_pitch_rad: f64,
+    slot: LinkSlot,
+    rt: tokio::runtime::Handle,
+) -> impl FnMut(u64) -> Option<CameraPose> + Send {
+    move |t: u64| {
+        let link = slot.get()?;
+        let p = rt.block_on(link.pose_at_mono_ns(t)).ok()?;
+        let (_, pitch, _) = p.q.to_euler(glam::EulerRot::ZYX);
+        let n = p.pos_ned_m;
+        Some(CameraPose {
+            position_m: [scene.survey.start_x_m + n.x, scene.survey.y_m - n.y, -n.z],
+            pitch_rad: mount_pitch_rad + pitch,
+        })
+    }
+}
+
+/// Opens what `config` names. Errors name the section and what is wrong.
+pub fn open(
+    config: &Config,
+    slot: LinkSlot,
+    rt: tokio::runtime::Handle,
+) -> Result<Devices, String> {
+    if let Some(note) = config.unsupported_by_build() {
+        return Err(note);
+    }
+    let scene = match &config.sim_scene {
+        Some(p) if uses(config, SourceKind::Synthetic) => {
+            if config.sim_pose == SimPose::Truth {
+                return Err(
+                    "sim.pose = \"truth\" needs the simulator's truth, which only `alfd sim` has: use \"telemetry\" with `alfd run`"
+                        .into(),
+                );
+            }
+            Some(Arc::new(Scene::load(p).map_err(|e| e.to_string())?))
+        }
+        _ => None,
+    };
+    let d = &config.depth;
+    let depth: Option<Box<dyn DepthSource>> = match d.kind {
+        SourceKind::None => None,
+        SourceKind::Recorded => {
+            let dir = d
+                .dir
+                .as_ref()
+                .ok_or("depth.dir: a recorded source needs it")?;
+            Some(recorded_depth(dir, d.replay_live).map_err(|e| format!("depth.dir: {e}"))?)
+        }
+        SourceKind::Synthetic => {
+            let scene = scene
+                .clone()
+                .ok_or("sim.scene: needed by a synthetic depth source")?;
+            let intr = intrinsics(d).map_err(|e| format!("depth: {e}"))?;
+            let sensor = SensorModel {
+                scale_m: d.scale_m,
+                noise_per_m: d.noise_per_m,
+                dropout: d.dropout,
+                max_range_m: d.max_range_m,
+                seed: 1,
+            };
+            Some(Box::new(SyntheticDepth::new(
+                scene.clone(),
+                intr,
+                sensor,
+                d.fps,
+                telemetry_pose(scene, d.mount_pitch_rad, slot.clone(), rt.clone()),
+                MonotonicClock,
+            )))
+        }
+        SourceKind::V4l2 => open_v4l2_depth(d)?,
+    };
+    let c = &config.camera;
+    let frames = match c.kind {
+        SourceKind::None => None,
+        SourceKind::Recorded => {
+            let dir = c
+                .dir
+                .as_ref()
+                .ok_or("camera.dir: a recorded source needs it")?;
+            Some(Frames::Stream(
+                recorded_color(dir, c.replay_live).map_err(|e| format!("camera.dir: {e}"))?,
+            ))
+        }
+        SourceKind::Synthetic => {
+            let scene = scene.ok_or("sim.scene: needed by a synthetic camera")?;
+            let intr = Intrinsics::from_hfov_deg(c.width, c.height, d.hfov_deg, None)
+                .map_err(|e| format!("camera: {e}"))?;
+            Some(Frames::AtInstant(Box::new(SyntheticColor::new(
+                scene.clone(),
+                intr,
+                1,
+                telemetry_pose(scene, d.mount_pitch_rad, slot, rt),
+            ))))
+        }
+        SourceKind::V4l2 => open_v4l2_color(c)?,
+    };
+    Ok(Devices {
+        depth,
+        frames,
+        tick_hz: d.fps,
+    })
+}
+
+/// A recorded depth camera: once with the recorded times, or `live`.
+fn recorded_depth(dir: &Path, live: bool) -> Result<Box<dyn DepthSource>, String> {
+    let rec = Recording::open(dir).map_err(|e| e.to_string())?;
+    Ok(if live {
+        return Err("replay = \"live\" is not in this build yet".into());
+    } else {
+        Box::new(rec)
+    })
+}
+
+/// A recorded colour camera: once with the recorded times, or `live`.
+fn recorded_color(dir: &Path, live: bool) -> Result<Box<dyn FrameSource>, String> {
+    let rec = Recording::open(dir).map_err(|e| e.to_string())?;
+    Ok(if live {
+        return Err("replay = \"live\" is not in this build yet".into());
+    } else {
+        Box::new(rec)
+    })
+}
+
+fn uses(c: &Config, kind: SourceKind) -> bool {
+    c.camera.kind == kind || c.depth.kind == kind
+}
+
+#[cfg(feature = "v4l2")]
+fn open_v4l2_depth(d: &SourceConfig) -> Result<Option<Box<dyn DepthSource>>, String> {
+    let intr = intrinsics(d).map_err(|e| format!("depth: {e}"))?;
+    let src = crate::source::v4l2::V4l2Depth::open(d.device.clone(), intr, d.scale_m, d.fps as u32)
+        .map_err(|e| format!("depth: {e}"))?;
+    Ok(Some(Box::new(src)))
+}
+
+#[cfg(not(feature = "v4l2"))]
+fn open_v4l2_depth(_: &SourceConfig) -> Result<Option<Box<dyn DepthSource>>, String> {
+    Err("depth.source = \"v4l2\" needs a build with `--features v4l2`".into())
+}
+
+#[cfg(feature = "v4l2")]
+fn open_v4l2_color(c: &SourceConfig) -> Result<Option<Frames>, String> {
+    let src = crate::source::v4l2::V4l2Color::open(
+        c.device.clone(),
+        c.mjpeg,
+        c.width,
+        c.height,
+        c.fps as u32,
+    )
+    .map_err(|e| format!("camera: {e}"))?;
+    Ok(Some(Frames::Stream(Box::new(src))))
+}
+
+#[cfg(not(feature = "v4l2"))]
+fn open_v4l2_color(_: &SourceConfig) -> Result<Option<Frames>, String> {
+    Err("camera.source = \"v4l2\" needs a build with `--features v4l2`".into())
+}

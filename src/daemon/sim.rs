@@ -1,0 +1,556 @@
+//! `alfd sim`: firmware-sim on a pseudo-terminal flying a survey line over a
+//! synthetic scene, the daemon against it with synthetic cameras, and the run
+//! judged against the simulator's truth (`simreport`). Everything the flight
+//! uses runs here too: the link, the pipeline, the writer, the exports.
+
+use super::run::{run, Devices, FrameSample, Frames, RunError, RunOptions, RunReport, SampleHook};
+use crate::capture::CaptureMode;
+use crate::config::{Config, SimPose, SourceConfig};
+use crate::core::{Intrinsics, Model};
+use crate::link::{mono_ns, LinkHandle};
+use crate::notify::Notifier;
+use crate::render::{Camera, SensorModel};
+use crate::scene::Scene;
+use crate::simreport::{self, CaptureAt, DaemonSample, Summary, TrackSample, TruthPose};
+use crate::source::synthetic::{CameraPose, MonotonicClock, SyntheticColor, SyntheticDepth};
+use firmware_sim::{SimConfig, Transport, Truth};
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex, OnceLock};
+use std::time::Duration;
+
+/// The scene `alfd sim` flies over when none is given.
+pub const DEFAULT_SCENE: &str = include_str!("../../scenes/district.toml");
+
+#[derive(Debug, Clone)]
+pub struct SimArgs {
+    /// A scene file; `None`: the built-in district.
+    pub scene: Option<PathBuf>,
+    /// A daemon config to start from (its link address is replaced by the simulator's).
+    pub config: Option<PathBuf>,
+    pub out: PathBuf,
+    pub speed_mps: f64,
+    pub telemetry_hz: f64,
+    pub fps: f64,
+    pub width: usize,
+    pub height: usize,
+    pub mode: CaptureMode,
+    pub model: Option<Model>,
+    pub pose: SimPose,
+    /// Forward MAVLink to a ground station (`udpout:HOST:PORT`).
+    pub gcs: Option<String>,
+    pub progress: bool,
+    /// Stop after this much of the line (metres); `None`: all of it.
+    pub length_m: Option<f64>,
+    pub seed: u64,
+}
+
+impl Default for SimArgs {
+    fn default() -> Self {
+        SimArgs {
+            scene: None,
+            config: None,
+            out: PathBuf::from("sim-out"),
+            speed_mps: 10.0,
+            telemetry_hz: 10.0,
+            fps: 30.0,
+            width: 640,
+            height: 480,
+            mode: CaptureMode::Frame,
+            model: None,
+            pose: SimPose::Truth,
+            gcs: None,
+            progress: true,
+            length_m: None,
+            seed: 1,
+        }
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum SimRunError {
+    #[error("{0}")]
+    Setup(String),
+    #[error(transparent)]
+    Run(#[from] RunError),
+}
+
+/// What `alfd sim` produced.
+pub struct SimOutcome {
+    pub flight_dir: PathBuf,
+    pub summary: Summary,
+    pub report: RunReport,
+    pub plots: Vec<PathBuf>,
+    pub truth: Vec<TrackSample>,
+    /// The simulator's truth at each logged record's instant (same order).
+    pub truth_at_records: Vec<Truth>,
+    /// Bytes of the images written.
+    pub image_bytes: u64,
+    /// What firmware-sim saw: COMMAND_LONGs from alfd (instant, command id),
+    /// the CAMERA_TRIGGERs it sent (instant, seq), and its counters.
+    pub sim_commands: Vec<(u64, u32)>,
+    pub sim_triggers: Vec<(u64, u32)>,
+    pub sim_events_lost: u64,
+    pub sim_stats: firmware_sim::SimStats,
+}
+
+/// Scene coordinates of a local NED position: the survey line starts at the
+/// scene's `start_x_m` and heads north along +x; west is +y; up is +z.
+pub fn scene_position(scene: &Scene, ned: [f64; 3]) -> [f64; 3] {
+    [
+        scene.survey.start_x_m + ned[0],
+        scene.survey.y_m - ned[1],
+        -ned[2],
+    ]
+}
+
+fn camera_pose(scene: &Scene, mount_pitch_rad: f64, ned: [f64; 3], pitch_rad: f64) -> CameraPose {
+    CameraPose {
+        position_m: scene_position(scene, ned),
+        pitch_rad: mount_pitch_rad + pitch_rad,
+    }
+}
+
+fn sim_config_text(a: &SimArgs, scene_path: &Path, flight_dir: &Path, scene: &Scene) -> String {
+    let mode = match a.mode {
+        CaptureMode::Frame => "frame",
+        CaptureMode::CameraCommand => "camera_command",
+        CaptureMode::AutopilotDistance => "autopilot_distance",
+    };
+    let model = a.model.unwrap_or(Model::Occlusion).as_str();
+    let pose = match a.pose {
+        SimPose::Truth => "truth",
+        SimPose::Telemetry => "telemetry",
+    };
+    let camera = if a.mode == CaptureMode::Frame {
+        "synthetic"
+    } else {
+        "none"
+    };
+    format!(
+        r#"[mavlink]
+address = "serial:/dev/null:921600"
+system_id = 1
+component_id = 100
+accept_system_ids = [1, 255]
+position_hz = {hz}
+attitude_hz = {hz}
+
+[sim]
+pose = "{pose}"
+scene = {scene_path:?}
+
+[camera]
+source = "{camera}"
+width = {w}
+height = {h}
+fps = {fps}
+
+[depth]
+source = "synthetic"
+width = {w}
+height = {h}
+fps = {fps}
+hfov_deg = {hfov}
+mount_pitch_deg = {pitch}
+# 1 cm per Z16 unit: 1 mm (a RealSense's default) saturates at 65.5 m.
+scale_m = 0.01
+max_range_m = {range}
+
+[sampling]
+model = "{model}"
+
+[trigger]
+rate_max_hz = {fps}
+fallback_spacing_m = 1.0
+
+[capture]
+dir = {dir:?}
+mode = "{mode}"
+image_format = "jpeg"
+jpeg_quality = 90
+"#,
+        hz = a.telemetry_hz,
+        w = a.width,
+        h = a.height,
+        fps = a.fps,
+        hfov = scene.survey.hfov_deg,
+        pitch = scene.survey.pitch_rad.to_degrees(),
+        range = (scene.survey.altitude_m * 3.0).max(65.0),
+        dir = flight_dir,
+    )
+}
+
+/// Runs `alfd sim` to its summary.
+pub async fn run_sim(
+    args: SimArgs,
+    shutdown: impl std::future::Future<Output = ()> + Send,
+) -> Result<SimOutcome, SimRunError> {
+    let setup = |e: String| SimRunError::Setup(e);
+    std::fs::create_dir_all(&args.out)
+        .map_err(|e| setup(format!("{}: {e}", args.out.display())))?;
+    let flight_dir = super::run::next_flight_dir(&args.out);
+    std::fs::create_dir_all(&flight_dir)
+        .map_err(|e| setup(format!("{}: {e}", flight_dir.display())))?;
+    // The scene flown is copied next to the captures: the run can be redone.
+    let (scene_text, scene_name) = match &args.scene {
+        Some(p) => (
+            std::fs::read_to_string(p).map_err(|e| setup(format!("{}: {e}", p.display())))?,
+            p.display().to_string(),
+        ),
+        None => (DEFAULT_SCENE.to_string(), "district (built in)".to_string()),
+    };
+    let scene_path = flight_dir.join("scene.toml");
+    std::fs::write(&scene_path, &scene_text)
+        .map_err(|e| setup(format!("{}: {e}", scene_path.display())))?;
+    let scene = Scene::parse(&scene_text, &scene_name).map_err(|e| setup(e.to_string()))?;
+
+    let mut config = match &args.config {
+        Some(p) => Config::load(p).map_err(|e| setup(e.to_string()))?,
+        None => {
+            let text = sim_config_text(&args, &scene_path, &flight_dir, &scene);
+            let path = flight_dir.join("alfd.toml");
+            std::fs::write(&path, &text).map_err(|e| setup(format!("{}: {e}", path.display())))?;
+            Config::from_text(&text, &path.display().to_string())
+                .map_err(|e| setup(format!("the built-in sim config: {e}")))?
+        }
+    };
+    if args.config.is_some() {
+        config.capture.dir = flight_dir.clone();
+    }
+    let scene = match &config.sim_scene {
+        Some(p) if args.config.is_some() => Scene::load(p).map_err(|e| setup(e.to_string()))?,
+        _ => scene,
+    };
+    let scene = Arc::new(scene);
+
+    // The simulated autopilot: a line north over the scene's survey.
+    let mut sc = SimConfig {
+        transport: Transport::Pty {
+            link: Some(flight_dir.join("ttyFC")),
+        },
+        gcs: args.gcs.clone(),
+        ..SimConfig::default()
+    };
+    sc.survey.pattern = firmware_sim::Pattern::Line;
+    sc.survey.altitude_m = scene.survey.altitude_m;
+    sc.survey.heading_deg = 0.0;
+    let line_m = scene.survey.end_x_m - scene.survey.start_x_m;
+    sc.survey.length_m = line_m;
+    sc.survey.lanes = 1;
+    sc.survey.speed_mps = args.speed_mps;
+    // The synthetic camera renders neither yaw nor roll: fly without wander,
+    // so the pictures and the logged attitude agree.
+    sc.survey.wind_m = 0.0;
+    sc.survey.wind_deg = 0.0;
+    sc.streams.attitude_quaternion = args.telemetry_hz;
+    sc.streams.global_position_int = args.telemetry_hz;
+    sc.streams.local_position_ned = args.telemetry_hz;
+    sc.faults.seed = args.seed;
+    let sim = Arc::new(
+        firmware_sim::start(sc)
+            .await
+            .map_err(|e| setup(format!("firmware-sim: {e}")))?,
+    );
+    if let Some(l) = config.link.as_mut() {
+        l.address = sim.address().to_string();
+    }
+    let watcher = {
+        let mut rx = sim.subscribe();
+        tokio::spawn(async move {
+            let (mut commands, mut triggers, mut lost) = (Vec::new(), Vec::new(), 0u64);
+            loop {
+                match rx.recv().await {
+                    Ok(firmware_sim::SimEvent::Received {
+                        mono_ns,
+                        component_id: 100,
+                        command: Some(c),
+                        ..
+                    }) => commands.push((mono_ns, c)),
+                    Ok(firmware_sim::SimEvent::Capture { mono_ns, seq }) => {
+                        triggers.push((mono_ns, seq))
+                    }
+                    Ok(_) => {}
+                    Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => lost += n,
+                    Err(tokio::sync::broadcast::error::RecvError::Closed) => {
+                        return (commands, triggers, lost)
+                    }
+                }
+            }
+        })
+    };
+    let stop_at_m = args.length_m.unwrap_or(line_m).min(line_m);
+
+    let mount = config.depth.mount_pitch_rad;
+    let link_slot: Arc<OnceLock<LinkHandle>> = Arc::new(OnceLock::new());
+    let rt = tokio::runtime::Handle::current();
+    let pose_source = |scene: Arc<Scene>| -> Box<dyn FnMut(u64) -> Option<CameraPose> + Send> {
+        match args.pose {
+            SimPose::Truth => {
+                let sim = sim.clone();
+                Box::new(move |t: u64| {
+                    let tr = sim.truth_at_mono_ns(t);
+                    Some(camera_pose(
+                        &scene,
+                        mount,
+                        tr.pos_ned_m,
+                        tr.rpy_deg[1].to_radians(),
+                    ))
+                })
+            }
+            SimPose::Telemetry => Box::new(super::devices::telemetry_pose(
+                scene,
+                mount,
+                link_slot.clone(),
+                rt.clone(),
+            )),
+        }
+    };
+    let intr = intrinsics(&config.depth).map_err(setup)?;
+    let sensor = SensorModel {
+        scale_m: config.depth.scale_m,
+        noise_per_m: config.depth.noise_per_m,
+        dropout: config.depth.dropout,
+        max_range_m: config.depth.max_range_m,
+        seed: args.seed,
+    };
+    let depth = SyntheticDepth::new(
+        scene.clone(),
+        intr,
+        sensor,
+        config.depth.fps,
+        pose_source(scene.clone()),
+        MonotonicClock,
+    );
+    let frames = (config.capture.mode == CaptureMode::Frame).then(|| {
+        let ci = Intrinsics::from_hfov_deg(
+            config.camera.width,
+            config.camera.height,
+            config.depth.hfov_deg,
+            None,
+        )
+        .unwrap_or(intr);
+        Frames::AtInstant(Box::new(SyntheticColor::new(
+            scene.clone(),
+            ci,
+            1,
+            pose_source(scene.clone()),
+        )))
+    });
+
+    // Progress along the line, from the frames the daemon processes.
+    let bar = args.progress.then(|| {
+        let b = indicatif::ProgressBar::new(stop_at_m.ceil() as u64);
+        b.set_style(
+            indicatif::ProgressStyle::with_template("{spinner} {bar:40} {pos}/{len} m  {msg}")
+                .expect("a valid template"),
+        );
+        b
+    });
+    let captures_seen = Arc::new(Mutex::new(0u64));
+    let on_sample: Option<SampleHook> = bar.clone().map(|b| {
+        let seen = captures_seen.clone();
+        Box::new(move |s: &FrameSample| {
+            if let Some(p) = s.pos_ned_m {
+                b.set_position(p[0].max(0.0) as u64);
+            }
+            if s.captured {
+                let mut n = seen.lock().unwrap_or_else(|p| p.into_inner());
+                *n += 1;
+                let spacing = s.spacing_m.map_or("-".into(), |v| format!("{v:.2} m"));
+                b.set_message(format!("{n} captures, spacing {spacing}"));
+            }
+        }) as SampleHook
+    });
+
+    let done = {
+        let sim = sim.clone();
+        async move {
+            // Past the end of the line (or the requested length), or a deadline
+            // well past the time the line takes, whichever is first.
+            let limit = mono_ns() + ((stop_at_m / args.speed_mps.max(0.1) + 30.0) * 1e9) as u64;
+            loop {
+                tokio::time::sleep(Duration::from_millis(50)).await;
+                let tr = sim.truth_at_mono_ns(mono_ns());
+                if tr.pos_ned_m[0] >= stop_at_m - 0.05 || mono_ns() > limit {
+                    return;
+                }
+            }
+        }
+    };
+    let options = RunOptions {
+        flight_dir: flight_dir.clone(),
+        keep_samples: true,
+        notifier: Notifier::disabled(),
+        on_sample,
+        on_link: Some({
+            let slot = link_slot.clone();
+            Box::new(move |l: &LinkHandle| {
+                let _ = slot.set(l.clone());
+            })
+        }),
+    };
+    let report = run(
+        config.clone(),
+        Devices {
+            depth: Some(Box::new(depth)),
+            frames,
+            tick_hz: args.fps,
+        },
+        options,
+        async move {
+            tokio::select! {
+                _ = done => {}
+                _ = shutdown => {}
+            }
+        },
+    )
+    .await;
+    if let Some(b) = &bar {
+        b.finish_and_clear();
+    }
+    let report = report?;
+
+    // Judge the run against the truth at the instants the daemon had frames.
+    let truth_at = |t: u64| sim.truth_at_mono_ns(t);
+    let (poses, daemon) = truth_track(&scene, &config, &report.samples, &truth_at);
+    let truth = simreport::truth_estimates(&scene, intr, &config.estimator, &poses);
+    let captures = capture_positions(&report, &poses, &truth_at);
+    let summary = simreport::summarize(
+        &truth,
+        &captures,
+        config.trigger.fallback_spacing_m,
+        args.speed_mps / args.fps,
+    );
+    let plots = simreport::plots(&truth, &daemon, &captures, &flight_dir)
+        .map_err(|e| setup(format!("plots: {e}")))?;
+    let mut track = String::new();
+    for t in &truth {
+        track.push_str(&serde_json::to_string(t).expect("a sample serialises"));
+        track.push('\n');
+    }
+    std::fs::write(flight_dir.join("truth_track.jsonl"), track)
+        .map_err(|e| setup(format!("truth_track.jsonl: {e}")))?;
+    let json = serde_json::to_string_pretty(&summary).expect("the summary serialises");
+    std::fs::write(flight_dir.join("summary.json"), json + "\n")
+        .map_err(|e| setup(format!("summary.json: {e}")))?;
+    let image_bytes = report
+        .records
+        .iter()
+        .filter_map(|r| r.image.as_ref())
+        .filter_map(|n| std::fs::metadata(flight_dir.join(n)).ok())
+        .map(|m| m.len())
+        .sum();
+    let truth_at_records = report
+        .records
+        .iter()
+        .map(|r| sim.truth_at_mono_ns(r.mono_ns))
+        .collect();
+    let sim_stats = sim.stats();
+    match Arc::try_unwrap(sim) {
+        Ok(s) => s.shutdown().await,
+        Err(_) => tracing::warn!("firmware-sim still referenced; left to stop with the process"),
+    }
+    let (sim_commands, sim_triggers, sim_events_lost) =
+        match tokio::time::timeout(Duration::from_secs(2), watcher).await {
+            Ok(Ok(r)) => r,
+            _ => (Vec::new(), Vec::new(), u64::MAX),
+        };
+    Ok(SimOutcome {
+        flight_dir,
+        summary,
+        report,
+        plots,
+        truth,
+        truth_at_records,
+        image_bytes,
+        sim_commands,
+        sim_triggers,
+        sim_events_lost,
+        sim_stats,
+    })
+}
+
+fn intrinsics(s: &SourceConfig) -> Result<Intrinsics, String> {
+    Intrinsics::from_hfov_deg(s.width, s.height, s.hfov_deg, s.principal_px)
+        .map_err(|e| format!("depth intrinsics: {e}"))
+}
+
+/// True poses at the daemon's frame instants, with the distance flown along
+/// the truth path; and the daemon's own estimates at the same places.
+fn truth_track(
+    scene: &Scene,
+    config: &Config,
+    samples: &[FrameSample],
+    truth_at: &dyn Fn(u64) -> Truth,
+) -> (Vec<TruthPose>, Vec<DaemonSample>) {
+    let intr = intrinsics(&config.depth).expect("validated when the run started");
+    let mut along = 0.0;
+    let mut last: Option<[f64; 3]> = None;
+    let mut poses = Vec::with_capacity(samples.len());
+    let mut daemon = Vec::with_capacity(samples.len());
+    for s in samples {
+        let tr = truth_at(s.mono_ns);
+        if let Some(l) = last {
+            along += (tr.pos_ned_m[0] - l[0]).hypot(tr.pos_ned_m[1] - l[1]);
+        }
+        last = Some(tr.pos_ned_m);
+        let cp = camera_pose(
+            scene,
+            config.depth.mount_pitch_rad,
+            tr.pos_ned_m,
+            tr.rpy_deg[1].to_radians(),
+        );
+        poses.push(TruthPose {
+            mono_ns: s.mono_ns,
+            along_m: along,
+            camera: Camera {
+                position_m: cp.position_m,
+                pitch_rad: cp.pitch_rad,
+                intrinsics: intr,
+            },
+            north_m: tr.pos_ned_m[0],
+            east_m: tr.pos_ned_m[1],
+        });
+        daemon.push(DaemonSample {
+            along_m: along,
+            spacing_m: s.spacing_m,
+            occlusion_degree: s.occlusion_degree,
+        });
+    }
+    (poses, daemon)
+}
+
+/// Where each logged capture truly was, as distance along the truth path.
+fn capture_positions(
+    report: &RunReport,
+    poses: &[TruthPose],
+    truth_at: &dyn Fn(u64) -> Truth,
+) -> Vec<CaptureAt> {
+    report
+        .records
+        .iter()
+        .map(|r| {
+            let tr = truth_at(r.mono_ns);
+            // The truth sample at or before the capture, plus the way since it.
+            let k = poses.partition_point(|p| p.mono_ns <= r.mono_ns);
+            let along = match k.checked_sub(1).and_then(|i| poses.get(i)) {
+                Some(p) => {
+                    p.along_m + (tr.pos_ned_m[0] - p.north_m).hypot(tr.pos_ned_m[1] - p.east_m)
+                }
+                None => poses.first().map_or(0.0, |p| {
+                    p.along_m - (tr.pos_ned_m[0] - p.north_m).hypot(tr.pos_ned_m[1] - p.east_m)
+                }),
+            };
+            CaptureAt {
+                seq: r.seq,
+                mono_ns: r.mono_ns,
+                along_m: along,
+                north_m: tr.pos_ned_m[0],
+                east_m: tr.pos_ned_m[1],
+                undersampled: r.undersampled,
+                rate_limited: r.rate_limited,
+                fallback: r.fallback,
+            }
+        })
+        .collect()
+}

@@ -1,0 +1,266 @@
+//! The daemon's subcommands, `alfd run` and `alfd sim`, and the log set-up:
+//! a tokio runtime, SIGTERM and Ctrl-C as the one shutdown path, the summary.
+
+use crate::cli::bad;
+use alfd::capture::CaptureMode;
+use alfd::config::{Config, SimPose};
+use alfd::core::Model;
+use alfd::daemon::devices::{self, LinkSlot};
+use alfd::daemon::run::{next_flight_dir, run, RunOptions, RunReport};
+use alfd::daemon::sim::{run_sim, SimArgs};
+use alfd::notify::Notifier;
+use anyhow::{Context, Result};
+use std::io::IsTerminal;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum LogFormat {
+    /// One line per event; colours only on a terminal (journald-friendly).
+    Text,
+    /// One JSON object per line.
+    Json,
+}
+
+/// Logs to stderr: plain text for journald (no colours, no timestamps when
+/// journald adds its own), or JSON lines for machines.
+pub fn init_logs(format: LogFormat, level: tracing::Level) {
+    let journald = std::env::var_os("JOURNAL_STREAM").is_some();
+    let builder = tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_max_level(level)
+        .with_target(false);
+    let _ = match format {
+        LogFormat::Json => builder.json().try_init(),
+        LogFormat::Text if journald => builder.with_ansi(false).without_time().try_init(),
+        LogFormat::Text => builder
+            .with_ansi(std::io::stderr().is_terminal())
+            .try_init(),
+    };
+}
+
+fn runtime() -> Result<tokio::runtime::Runtime> {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .context("starting the async runtime")
+}
+
+/// Resolves on SIGTERM or Ctrl-C.
+async fn termination() {
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(_) => std::future::pending::<()>().await,
+        }
+    };
+    tokio::select! {
+        _ = term => {}
+        _ = tokio::signal::ctrl_c() => {}
+    }
+}
+
+#[derive(clap::Args)]
+pub struct RunArgs {
+    /// The daemon's config file (see configs/).
+    #[arg(long)]
+    config: PathBuf,
+}
+
+pub fn run_daemon(a: RunArgs) -> Result<ExitCode> {
+    let config = Config::load(&a.config).map_err(|e| bad(e.to_string()))?;
+    if config.link.is_none() {
+        return Err(bad(format!(
+            "{}: [mavlink]: the daemon needs a link to the flight controller",
+            a.config.display()
+        )));
+    }
+    let rt = runtime()?;
+    let report = rt.block_on(async {
+        let slot = LinkSlot::default();
+        let devices = devices::open(&config, slot.clone(), tokio::runtime::Handle::current())
+            .map_err(|e| bad(format!("{}: {e}", a.config.display())))?;
+        let flight_dir = next_flight_dir(&config.capture.dir);
+        tracing::info!("captures go to {}", flight_dir.display());
+        let options = RunOptions {
+            flight_dir,
+            keep_samples: false,
+            notifier: Notifier::from_env(),
+            on_sample: None,
+            on_link: Some(Box::new(move |l| {
+                let _ = slot.set(l.clone());
+            })),
+        };
+        run(config, devices, options, termination())
+            .await
+            .map_err(anyhow::Error::from)
+    })?;
+    print_report(&report);
+    rt.shutdown_timeout(std::time::Duration::from_millis(200));
+    Ok(ExitCode::SUCCESS)
+}
+
+fn print_report(r: &RunReport) {
+    tracing::info!(
+        "stopped: {} captures in {}, {} depth frames ({} skipped while busy, {} bad), {} errors",
+        r.records.len(),
+        r.flight_dir.display(),
+        r.depth_frames,
+        r.frames_skipped_busy,
+        r.frames_bad,
+        r.capture_errors.len()
+    );
+    for e in &r.capture_errors {
+        tracing::warn!("{e}");
+    }
+}
+
+#[derive(clap::Args)]
+pub struct SimCliArgs {
+    /// Scene file (default: the built-in district, scenes/district.toml).
+    #[arg(long)]
+    scene: Option<PathBuf>,
+    /// Start from this daemon config (its link address is replaced).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Output directory: each run writes a new flight-NNN in it.
+    #[arg(long, default_value = "sim-out")]
+    out: PathBuf,
+    #[arg(long, default_value_t = 10.0)]
+    speed_mps: f64,
+    #[arg(long, default_value_t = 10.0)]
+    telemetry_hz: f64,
+    #[arg(long, default_value_t = 30.0)]
+    fps: f64,
+    #[arg(long, default_value_t = 640)]
+    width: usize,
+    #[arg(long, default_value_t = 480)]
+    height: usize,
+    /// frame, camera_command or autopilot_distance.
+    #[arg(long, default_value = "frame")]
+    mode: String,
+    /// occlusion, mmds, sspa or fixed.
+    #[arg(long)]
+    model: Option<String>,
+    /// Render at the simulator's truth, or at the pose alfd believes.
+    #[arg(long, default_value = "truth")]
+    pose: String,
+    /// Forward MAVLink to a ground station: udpout:HOST:PORT.
+    #[arg(long)]
+    gcs: Option<String>,
+    /// Fly only this much of the line (metres).
+    #[arg(long)]
+    length_m: Option<f64>,
+    #[arg(long)]
+    no_progress: bool,
+}
+
+pub fn sim(a: SimCliArgs) -> Result<ExitCode> {
+    let mode = match a.mode.as_str() {
+        "frame" => CaptureMode::Frame,
+        "camera_command" => CaptureMode::CameraCommand,
+        "autopilot_distance" => CaptureMode::AutopilotDistance,
+        m => {
+            return Err(bad(format!(
+                "--mode {m}: use frame, camera_command or autopilot_distance"
+            )))
+        }
+    };
+    let model = match &a.model {
+        Some(m) => Some(
+            Model::parse(m)
+                .ok_or_else(|| bad(format!("--model {m}: use occlusion, mmds, sspa or fixed")))?,
+        ),
+        None => None,
+    };
+    let pose = match a.pose.as_str() {
+        "truth" => SimPose::Truth,
+        "telemetry" => SimPose::Telemetry,
+        p => return Err(bad(format!("--pose {p}: use truth or telemetry"))),
+    };
+    for (name, v, max) in [
+        ("--speed-mps", a.speed_mps, 50.0),
+        ("--telemetry-hz", a.telemetry_hz, 1000.0),
+        ("--fps", a.fps, 240.0),
+    ] {
+        if !(v.is_finite() && v > 0.0 && v <= max) {
+            return Err(bad(format!(
+                "{name} {v}: must be positive and at most {max}"
+            )));
+        }
+    }
+    if !(16..=4096).contains(&a.width) || !(12..=4096).contains(&a.height) {
+        return Err(bad(format!(
+            "--width {} --height {}: 16×12 to 4096×4096 pixels",
+            a.width, a.height
+        )));
+    }
+    let args = SimArgs {
+        scene: a.scene,
+        config: a.config,
+        out: a.out,
+        speed_mps: a.speed_mps,
+        telemetry_hz: a.telemetry_hz,
+        fps: a.fps,
+        width: a.width,
+        height: a.height,
+        mode,
+        model,
+        pose,
+        gcs: a.gcs,
+        progress: !a.no_progress && std::io::stderr().is_terminal(),
+        length_m: a.length_m,
+        seed: 1,
+    };
+    let rt = runtime()?;
+    let started = std::time::Instant::now();
+    let out = rt
+        .block_on(run_sim(args, termination()))
+        .map_err(|e| match e {
+            alfd::daemon::sim::SimRunError::Setup(m) => bad(m),
+            other => anyhow::Error::from(other),
+        })?;
+    let r = &out.report;
+    let mut text = String::new();
+    text.push_str(&format!(
+        "alfd sim: {} in {:.0} s\n",
+        out.flight_dir.display(),
+        started.elapsed().as_secs_f64()
+    ));
+    text.push_str(out.summary.render_text().trim_end());
+    text.push('\n');
+    text.push_str(&format!(
+        "depth frames    {} ({} missed by the source, {} skipped while the estimator was busy, {} bad), estimator {:.1} ms per frame\n",
+        r.depth_frames,
+        r.frames_missed_by_source,
+        r.frames_skipped_busy,
+        r.frames_bad,
+        r.estimator_busy_ns as f64 * 1e-6 / r.samples.len().max(1) as f64
+    ));
+    text.push_str(&format!(
+        "images          {:.1} MB, telemetry.tlog {} messages, exports: geo.txt {} lines, transforms.json {} frames\n",
+        out.image_bytes as f64 / 1e6,
+        r.tlog_frames,
+        r.exports.as_ref().map_or(0, |e| e.geo_lines),
+        r.exports.as_ref().and_then(|e| e.transform_frames).unwrap_or(0),
+    ));
+    for (name, ok, line) in out.summary.targets() {
+        text.push_str(&format!(
+            "target          {:<28} {:<7} {line}\n",
+            name,
+            if ok { "met" } else { "NOT met" }
+        ));
+    }
+    for p in &out.plots {
+        text.push_str(&format!("plot            {}\n", p.display()));
+    }
+    for e in &r.capture_errors {
+        text.push_str(&format!("error           {e}\n"));
+    }
+    crate::cli::emit(&text)?;
+    rt.shutdown_timeout(std::time::Duration::from_millis(200));
+    Ok(ExitCode::SUCCESS)
+}
