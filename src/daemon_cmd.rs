@@ -87,6 +87,7 @@ pub fn run_daemon(a: RunArgs) -> Result<ExitCode> {
         tracing::info!("captures go to {}", flight_dir.display());
         let options = RunOptions {
             flight_dir,
+            store: None,
             keep_samples: false,
             notifier: Notifier::from_env(),
             on_sample: None,
@@ -214,6 +215,8 @@ pub fn sim(a: SimCliArgs) -> Result<ExitCode> {
         progress: !a.no_progress && std::io::stderr().is_terminal(),
         length_m: a.length_m,
         seed: 1,
+        faults: None,
+        depth_outages: Vec::new(),
     };
     let rt = runtime()?;
     let started = std::time::Instant::now();

@@ -54,6 +54,8 @@ pub trait CaptureStore {
     fn sync_telemetry(&mut self) -> Result<(), StoreError>;
     /// Bytes still available for the log, when known.
     fn free_bytes(&self) -> Option<u64>;
+    /// The manifest as stored (read back for the exports at the end of a run).
+    fn manifest_bytes(&self) -> Result<Vec<u8>, StoreError>;
 }
 
 impl<S: CaptureStore + ?Sized> CaptureStore for &mut S {
@@ -74,6 +76,33 @@ impl<S: CaptureStore + ?Sized> CaptureStore for &mut S {
     }
     fn free_bytes(&self) -> Option<u64> {
         (**self).free_bytes()
+    }
+    fn manifest_bytes(&self) -> Result<Vec<u8>, StoreError> {
+        (**self).manifest_bytes()
+    }
+}
+
+impl<S: CaptureStore + ?Sized> CaptureStore for Box<S> {
+    fn write_image(&mut self, name: &str, bytes: &[u8]) -> Result<(), StoreError> {
+        (**self).write_image(name, bytes)
+    }
+    fn append_manifest_line(&mut self, line: &str) -> Result<(), StoreError> {
+        (**self).append_manifest_line(line)
+    }
+    fn write_export(&mut self, name: &str, bytes: &[u8]) -> Result<(), StoreError> {
+        (**self).write_export(name, bytes)
+    }
+    fn append_telemetry(&mut self, bytes: &[u8]) -> Result<(), StoreError> {
+        (**self).append_telemetry(bytes)
+    }
+    fn sync_telemetry(&mut self) -> Result<(), StoreError> {
+        (**self).sync_telemetry()
+    }
+    fn free_bytes(&self) -> Option<u64> {
+        (**self).free_bytes()
+    }
+    fn manifest_bytes(&self) -> Result<Vec<u8>, StoreError> {
+        (**self).manifest_bytes()
     }
 }
 
@@ -311,6 +340,10 @@ impl CaptureStore for DirStore {
         let s = rustix::fs::statvfs(&self.dir).ok()?;
         Some(s.f_bavail.saturating_mul(s.f_frsize))
     }
+    fn manifest_bytes(&self) -> Result<Vec<u8>, StoreError> {
+        let p = self.manifest_path();
+        fs::read(&p).map_err(|e| io_error(&p, e))
+    }
 }
 
 /// A capture log in memory, for tests of the code that writes one.
@@ -361,6 +394,9 @@ impl CaptureStore for MemStore {
 
     fn free_bytes(&self) -> Option<u64> {
         None
+    }
+    fn manifest_bytes(&self) -> Result<Vec<u8>, StoreError> {
+        Ok(self.manifest.clone())
     }
 }
 
@@ -424,6 +460,9 @@ impl<S: CaptureStore> CaptureStore for FillingStore<S> {
     fn free_bytes(&self) -> Option<u64> {
         let left = self.capacity - self.used;
         Some(self.inner.free_bytes().map_or(left, |f| f.min(left)))
+    }
+    fn manifest_bytes(&self) -> Result<Vec<u8>, StoreError> {
+        self.inner.manifest_bytes()
     }
 }
 

@@ -24,6 +24,8 @@ pub enum NoEstimate {
     PitchNearHorizontal,
     /// The pitch is not a finite number (a corrupted attitude).
     InvalidPitch,
+    /// No depth frame arrived in time (the depth camera stalled).
+    NoDepthFrame,
 }
 
 impl NoEstimate {
@@ -32,6 +34,7 @@ impl NoEstimate {
             NoEstimate::TooFewValidPixels => "too_few_valid_pixels",
             NoEstimate::PitchNearHorizontal => "pitch_near_horizontal",
             NoEstimate::InvalidPitch => "invalid_pitch",
+            NoEstimate::NoDepthFrame => "no_depth_frame",
         }
     }
 }
@@ -140,6 +143,32 @@ pub struct Estimate {
 }
 
 impl Estimate {
+    /// The estimate of an opportunity without depth: nothing known, so the
+    /// trigger falls back to its configured spacing.
+    pub fn without_depth(pitch_rad: f64) -> Estimate {
+        Estimate {
+            no_estimate: Some(NoEstimate::NoDepthFrame),
+            decimation: 1,
+            samples: 0,
+            valid_samples: 0,
+            sky_samples: 0,
+            valid_fraction: 0.0,
+            pitch_rad: if pitch_rad.is_finite() {
+                pitch_rad
+            } else {
+                0.0
+            },
+            inv_depth: None,
+            occlusion: None,
+            plane: None,
+            spacing: Spacings::default(),
+            active_bound: None,
+            terms: Terms::default(),
+            pitch_scores: Vec::new(),
+            best_pitch: None,
+        }
+    }
+
     pub fn is_ok(&self) -> bool {
         self.no_estimate.is_none()
     }
@@ -314,7 +343,10 @@ impl Estimator {
             est.no_estimate = Some(NoEstimate::PitchNearHorizontal);
             return Ok(est);
         }
-        if est.valid_fraction < p.valid_fraction_min || self.grid.valid == 0 {
+        // The fixed model needs no depth (a rig without a depth camera).
+        if p.model != Model::Fixed
+            && (est.valid_fraction < p.valid_fraction_min || self.grid.valid == 0)
+        {
             est.no_estimate = Some(NoEstimate::TooFewValidPixels);
             return Ok(est);
         }

@@ -616,3 +616,24 @@ fn default_params_validate_and_bad_ones_name_their_field() {
     p.pitch_max_rad = 1.6;
     assert_eq!(p.validate().unwrap_err().field, "estimator.pitch_max_deg");
 }
+
+#[test]
+fn the_fixed_model_needs_no_valid_depth() {
+    // A rig without a depth camera: every pixel invalid, the fixed spacing holds.
+    let intr = Intrinsics::from_hfov_deg(4, 3, 69.0, None).unwrap();
+    let img = metres(4, 3, vec![f32::NAN; 12]);
+    let mut p = no_score();
+    p.model = Model::Fixed;
+    p.fixed_spacing_m = 2.5;
+    let e = run(&img, &intr, 0.0, &p);
+    assert!(e.no_estimate.is_none(), "{:?}", e.no_estimate);
+    assert_eq!(e.spacing.chosen_m, Some(2.5));
+    // Any other model says why it has nothing.
+    p.model = Model::Mmds;
+    let e = run(&img, &intr, 0.0, &p);
+    assert_eq!(e.no_estimate, Some(NoEstimate::TooFewValidPixels));
+    assert_eq!(e.spacing.chosen_m, None);
+    let none = Estimate::without_depth(f64::NAN);
+    assert_eq!(none.no_estimate, Some(NoEstimate::NoDepthFrame));
+    assert!(none.spacing.chosen_m.is_none() && none.pitch_rad == 0.0);
+}

@@ -7,7 +7,7 @@
 use super::camera::{camera_q_ned, CameraInfo, CameraProtocol, Captured, StorageState};
 use super::step::{capture_record, FrameInput, Pipeline, RecordInputs, StepOutcome, StepParams};
 use crate::capture::{
-    encode_capture, log_capture, read_manifest, write_exports, CaptureMode, CaptureRecord,
+    encode_capture, log_capture, parse_manifest, write_exports, CaptureMode, CaptureRecord,
     CaptureStore, DirStore, ExifGps, ExportSummary, ImageFormat, TlogWriter,
 };
 use crate::config::{CameraCommand, Config};
@@ -50,9 +50,15 @@ pub type SampleHook = Box<dyn FnMut(&FrameSample) + Send>;
 /// Called once with the link's handle.
 pub type LinkHook = Box<dyn FnOnce(&LinkHandle) + Send>;
 
+/// Where a run's capture log goes when not a directory on disk (tests: a
+/// store that fills up).
+pub type BoxedStore = Box<dyn CaptureStore + Send>;
+
 pub struct RunOptions {
     /// The flight directory (created; numbering continues after its manifest).
     pub flight_dir: PathBuf,
+    /// Log here instead of a `DirStore` on `flight_dir`.
+    pub store: Option<BoxedStore>,
     /// Keep every frame's estimate in the report (`alfd sim` plots them).
     pub keep_samples: bool,
     pub notifier: Notifier,
@@ -139,6 +145,7 @@ enum WriterEvent {
 
 #[derive(Default)]
 struct WriterReport {
+    records: Vec<CaptureRecord>,
     errors: Vec<String>,
     frames_missing: u64,
     tlog_frames: u64,
@@ -268,7 +275,15 @@ fn estimator_thread(
     };
     let mut pipeline: Option<Pipeline> = None;
     let state = ctx.link.state();
-    while let Ok(frame) = rx.recv() {
+    // Without a depth frame for this long the camera has stalled: the trigger
+    // still gets opportunities, at the fallback spacing, flagged.
+    let stall = Duration::from_secs_f64((5.0 / cfg.depth.fps).max(0.15));
+    loop {
+        let frame = match rx.recv_timeout(stall) {
+            Ok(f) => Some(f),
+            Err(std::sync::mpsc::RecvTimeoutError::Timeout) => None,
+            Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => return,
+        };
         if ctx.stop.load(Ordering::Relaxed) {
             return;
         }
@@ -285,7 +300,7 @@ fn estimator_thread(
                 pipeline = Some(p);
             }
         }
-        let t = frame.mono_ns;
+        let t = frame.as_ref().map_or(started, |f| f.mono_ns);
         let outcome = match pipeline.as_mut() {
             None => StepOutcome::Suspended {
                 reason: "no position from the autopilot yet".into(),
@@ -301,7 +316,7 @@ fn estimator_thread(
                     .map(|ns| ns / 1000);
                 p.on_frame(FrameInput {
                     mono_ns: t,
-                    depth: &frame.data,
+                    depth: frame.as_ref().map(|f| &f.data),
                     intrinsics: &ctx.intrinsics,
                     pose,
                     boot_us,
@@ -345,19 +360,19 @@ fn estimator_thread(
 }
 
 fn writer_thread(
-    store: DirStore,
+    store: BoxedStore,
     format: ImageFormat,
     mut rx: mpsc::UnboundedReceiver<WriterMsg>,
     mut frames: Option<Box<dyn FrameAt>>,
     events: mpsc::UnboundedSender<WriterEvent>,
     free_bytes: Arc<AtomicU64>,
     make_model: (String, String),
-) -> (WriterReport, DirStore) {
+) -> WriterReport {
     let mut report = WriterReport::default();
     let mut tlog_failed = false;
     // One store for the manifest and the tlog: the tlog writer owns it (it
     // syncs the telemetry once a second) and gives it back at the end.
-    let mut st = TlogWriter::new(store, 1_000_000);
+    let mut st: TlogWriter<BoxedStore> = TlogWriter::new(store, 1_000_000);
     while let Some(msg) = rx.blocking_recv() {
         match msg {
             WriterMsg::Finish => break,
@@ -425,14 +440,20 @@ fn writer_thread(
         report.errors.push(format!("telemetry.tlog: {e}"));
     }
     let mut store = st.into_inner();
-    match read_manifest(&store.manifest_path()) {
-        Ok(m) => match write_exports(&mut store, &m.records) {
-            Ok(s) => report.exports = Some(s),
-            Err(e) => report.errors.push(format!("exports: {e}")),
-        },
+    // The exports come from the manifest as stored: what a reconstruction
+    // tool will read, and no list of every record kept in memory meanwhile.
+    match store.manifest_bytes() {
+        Ok(bytes) => {
+            let m = parse_manifest(&bytes);
+            match write_exports(&mut store, &m.records) {
+                Ok(s) => report.exports = Some(s),
+                Err(e) => report.errors.push(format!("exports: {e}")),
+            }
+            report.records = m.records;
+        }
         Err(e) => report.errors.push(format!("manifest: {e}")),
     }
-    (report, store)
+    report
 }
 
 /// Runs the daemon until `shutdown` resolves or the depth source ends.
@@ -446,10 +467,23 @@ pub async fn run(
         .link
         .clone()
         .ok_or_else(|| RunError::Config("no [mavlink] section: the daemon needs a link".into()))?;
-    let store = DirStore::open(&options.flight_dir)
-        .map_err(|e| RunError::Store(options.flight_dir.clone(), e.to_string()))?;
-    let last_seq = read_manifest(&store.manifest_path())
-        .map(|m| m.records.iter().map(|r| r.seq).max().unwrap_or(0))
+    let store: BoxedStore = match options.store.take() {
+        Some(s) => s,
+        None => Box::new(
+            DirStore::open(&options.flight_dir)
+                .map_err(|e| RunError::Store(options.flight_dir.clone(), e.to_string()))?,
+        ),
+    };
+    let last_seq = store
+        .manifest_bytes()
+        .map(|b| {
+            parse_manifest(&b)
+                .records
+                .iter()
+                .map(|r| r.seq)
+                .max()
+                .unwrap_or(0)
+        })
         .unwrap_or(0);
 
     let (mut link_task, link, mut link_events) = link::new(link_cfg.clone());
@@ -578,6 +612,9 @@ pub async fn run(
         setter: DistanceSetter::new(DistanceSetterParams::default()),
         suspended: None,
         fallback: false,
+        terms: None,
+        terms_said_ns: 0,
+        skipped_said: 0,
         last_estimate: None,
         tightest_since_trigger: None,
         last_trigger_ne: None,
@@ -589,6 +626,7 @@ pub async fn run(
         writer: writer_tx.clone(),
         keep_samples: options.keep_samples,
         free_bytes,
+        skipped_busy: counters.clone(),
     };
     co.status(MavSeverity::MAV_SEVERITY_INFO, &co.ready_text())
         .await;
@@ -644,11 +682,14 @@ pub async fn run(
     .await;
     drop(frame_thread);
     let _ = writer_tx.send(WriterMsg::Finish);
-    let (wreport, _store) = tokio::task::spawn_blocking(move || writer.join())
+    let wreport = tokio::task::spawn_blocking(move || writer.join())
         .await
         .ok()
         .and_then(|r| r.ok())
-        .unwrap_or_default_pair();
+        .unwrap_or_else(|| WriterReport {
+            errors: vec!["the writer thread did not finish".into()],
+            ..WriterReport::default()
+        });
     while let Ok(ev) = wev_rx.try_recv() {
         co.on_writer_event(ev).await;
     }
@@ -667,9 +708,7 @@ pub async fn run(
     report.exports = wreport.exports;
     report.trigger_distances_sent = co.setter.sent;
     report.trigger_distances_acked = co.setter.acked;
-    report.records = read_manifest(&report.flight_dir.join(crate::capture::MANIFEST))
-        .map(|m| m.records)
-        .unwrap_or_default();
+    report.records = wreport.records;
     if let Ok(Ok(Err(e))) = link_result {
         return Err(e.into());
     }
@@ -677,25 +716,6 @@ pub async fn run(
         return Err(RunError::Source(e));
     }
     Ok(report)
-}
-
-trait OrDefaultPair {
-    fn unwrap_or_default_pair(self) -> (WriterReport, Option<DirStore>);
-}
-
-impl OrDefaultPair for Option<(WriterReport, DirStore)> {
-    fn unwrap_or_default_pair(self) -> (WriterReport, Option<DirStore>) {
-        match self {
-            Some((r, s)) => (r, Some(s)),
-            None => (
-                WriterReport {
-                    errors: vec!["the writer thread did not finish".into()],
-                    ..WriterReport::default()
-                },
-                None,
-            ),
-        }
-    }
 }
 
 /// A ring that waits briefly for the frame of an instant it has not seen yet
@@ -721,6 +741,10 @@ struct Coordinator {
     setter: DistanceSetter,
     suspended: Option<String>,
     fallback: bool,
+    /// The terms last announced, and when (announcements at most every 10 s).
+    terms: Option<crate::core::estimate::Terms>,
+    terms_said_ns: u64,
+    skipped_said: u64,
     last_estimate: Option<Box<Estimate>>,
     tightest_since_trigger: Option<f64>,
     last_trigger_ne: Option<[f64; 2]>,
@@ -729,6 +753,7 @@ struct Coordinator {
     writer: mpsc::UnboundedSender<WriterMsg>,
     keep_samples: bool,
     free_bytes: Arc<AtomicU64>,
+    skipped_busy: Arc<Counters>,
 }
 
 impl Coordinator {
@@ -808,6 +833,16 @@ impl Coordinator {
                 (_, false) => "alfd: estimating again".to_string(),
             };
             self.status(MavSeverity::MAV_SEVERITY_NOTICE, &text).await;
+        }
+        // Which terms the estimate used: said when they change (a scene
+        // without occlusion boundaries drops the occlusion term), not more
+        // than every 10 s.
+        if e.is_ok() && self.terms != Some(e.terms) && mono >= self.terms_said_ns + 10_000_000_000 {
+            self.terms = Some(e.terms);
+            self.terms_said_ns = mono;
+            let bound = e.active_bound.map_or("config limit", |b| b.as_str());
+            let text = format!("alfd: terms {}; bound {bound}", e.terms.names().join(", "));
+            self.status(MavSeverity::MAV_SEVERITY_INFO, &text).await;
         }
         self.tightest_since_trigger = Some(
             self.tightest_since_trigger
@@ -1018,6 +1053,17 @@ impl Coordinator {
         }
         let free = self.free_bytes.load(Ordering::Relaxed);
         self.camera.set_storage(StorageState::from_free_bytes(free));
+        // The estimator runs on as many frames as its budget allows: say when
+        // it could not keep up.
+        let skipped = self.skipped_busy.skipped_busy.load(Ordering::Relaxed);
+        if skipped > self.skipped_said {
+            let text = format!(
+                "alfd: estimator behind, {} depth frames skipped",
+                skipped - self.skipped_said
+            );
+            self.skipped_said = skipped;
+            self.status(MavSeverity::MAV_SEVERITY_NOTICE, &text).await;
+        }
     }
 
     async fn boot_ms_now(&self) -> u32 {

@@ -42,6 +42,78 @@ pub struct SimArgs {
     /// Stop after this much of the line (metres); `None`: all of it.
     pub length_m: Option<f64>,
     pub seed: u64,
+    /// firmware-sim's faults (corruption, drops, scheduled link loss, reboot,
+    /// GPS glitch, silence), as in its config.
+    pub faults: Option<firmware_sim::config::Faults>,
+    /// Windows in which the synthetic depth camera fails.
+    pub depth_outages: Vec<DepthOutage>,
+}
+
+/// A depth camera failure, from `start_s` after the simulator started.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DepthOutage {
+    pub start_s: f64,
+    pub duration_s: f64,
+    pub kind: OutageKind,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OutageKind {
+    /// No frames at all (a stalled USB camera).
+    Stall,
+    /// Frames with no valid pixel (covered lens, all out of range).
+    NoValidPixels,
+}
+
+/// What a test may hand to a sim run besides its arguments.
+#[derive(Default)]
+pub struct SimHooks {
+    /// Log captures here instead of the flight directory.
+    pub store: Option<super::run::BoxedStore>,
+    /// Called once the simulator runs (e.g. to inject faults at run time).
+    pub on_sim: Option<Box<dyn FnOnce(Arc<firmware_sim::SimHandle>) + Send>>,
+}
+
+/// A depth source that fails in the given windows.
+struct Outages<S> {
+    inner: S,
+    start_ns: u64,
+    windows: Vec<DepthOutage>,
+}
+
+impl<S: crate::source::DepthSource> crate::source::DepthSource for Outages<S> {
+    fn intrinsics(&self) -> Intrinsics {
+        self.inner.intrinsics()
+    }
+    fn next_depth(
+        &mut self,
+    ) -> Result<Option<crate::source::Stamped<crate::core::DepthImage>>, crate::source::SourceError>
+    {
+        loop {
+            let f = self.inner.next_depth()?;
+            let Some(mut f) = f else { return Ok(None) };
+            let t = f.mono_ns.saturating_sub(self.start_ns) as f64 * 1e-9;
+            let w = self
+                .windows
+                .iter()
+                .find(|w| t >= w.start_s && t < w.start_s + w.duration_s);
+            match w.map(|w| w.kind) {
+                None => return Ok(Some(f)),
+                // The frame never comes: the next one is asked for.
+                Some(OutageKind::Stall) => continue,
+                Some(OutageKind::NoValidPixels) => {
+                    let (w, h) = (f.data.width(), f.data.height());
+                    f.data = crate::core::DepthImage::new(
+                        w,
+                        h,
+                        crate::core::DepthData::Metres(vec![f32::NAN; w * h]),
+                    )
+                    .expect("same size as the frame it replaces");
+                    return Ok(Some(f));
+                }
+            }
+        }
+    }
 }
 
 impl Default for SimArgs {
@@ -62,6 +134,8 @@ impl Default for SimArgs {
             progress: true,
             length_m: None,
             seed: 1,
+            faults: None,
+            depth_outages: Vec::new(),
         }
     }
 }
@@ -185,6 +259,15 @@ pub async fn run_sim(
     args: SimArgs,
     shutdown: impl std::future::Future<Output = ()> + Send,
 ) -> Result<SimOutcome, SimRunError> {
+    run_sim_with(args, SimHooks::default(), shutdown).await
+}
+
+/// [`run_sim`] with hooks for tests.
+pub async fn run_sim_with(
+    args: SimArgs,
+    mut hooks: SimHooks,
+    shutdown: impl std::future::Future<Output = ()> + Send,
+) -> Result<SimOutcome, SimRunError> {
     let setup = |e: String| SimRunError::Setup(e);
     std::fs::create_dir_all(&args.out)
         .map_err(|e| setup(format!("{}: {e}", args.out.display())))?;
@@ -245,14 +328,21 @@ pub async fn run_sim(
     sc.streams.attitude_quaternion = args.telemetry_hz;
     sc.streams.global_position_int = args.telemetry_hz;
     sc.streams.local_position_ned = args.telemetry_hz;
+    if let Some(f) = &args.faults {
+        sc.faults = f.clone();
+    }
     sc.faults.seed = args.seed;
     let sim = Arc::new(
         firmware_sim::start(sc)
             .await
             .map_err(|e| setup(format!("firmware-sim: {e}")))?,
     );
+    let sim_start_ns = mono_ns();
     if let Some(l) = config.link.as_mut() {
         l.address = sim.address().to_string();
+    }
+    if let Some(f) = hooks.on_sim.take() {
+        f(sim.clone());
     }
     let watcher = {
         let mut rx = sim.subscribe();
@@ -379,6 +469,7 @@ pub async fn run_sim(
     };
     let options = RunOptions {
         flight_dir: flight_dir.clone(),
+        store: hooks.store.take(),
         keep_samples: true,
         notifier: Notifier::disabled(),
         on_sample,
@@ -392,7 +483,15 @@ pub async fn run_sim(
     let report = run(
         config.clone(),
         Devices {
-            depth: Some(Box::new(depth)),
+            depth: Some(if args.depth_outages.is_empty() {
+                Box::new(depth)
+            } else {
+                Box::new(Outages {
+                    inner: depth,
+                    start_ns: sim_start_ns,
+                    windows: args.depth_outages.clone(),
+                })
+            }),
             frames,
             tick_hz: args.fps,
         },

@@ -25,10 +25,12 @@ pub struct StepParams {
     pub image_format: Option<ImageFormat>,
 }
 
-/// One depth frame and what is known at its instant.
+/// One depth frame (or an opportunity without one: the depth camera stalled)
+/// and what is known at its instant.
 pub struct FrameInput<'a> {
     pub mono_ns: u64,
-    pub depth: &'a DepthImage,
+    /// `None`: no depth frame came in time; the fallback spacing decides.
+    pub depth: Option<&'a DepthImage>,
     pub intrinsics: &'a Intrinsics,
     /// The pose interpolated to `mono_ns`, or why there is none (stale, not synced).
     pub pose: Result<Pose, String>,
@@ -116,13 +118,16 @@ impl Pipeline {
         let (_, pitch, _) = pose.q.to_euler(EulerRot::ZYX);
         // A belly camera tilts forward as the nose goes up.
         let camera_pitch = self.params.camera_mount_pitch_rad + pitch;
-        let estimate = match self.estimator.estimate(f.depth, f.intrinsics, camera_pitch) {
-            Ok((e, _)) => e,
-            Err(e) => {
-                return StepOutcome::Suspended {
-                    reason: format!("depth frame does not match the intrinsics: {e}"),
+        let estimate = match f.depth {
+            None => Estimate::without_depth(camera_pitch),
+            Some(depth) => match self.estimator.estimate(depth, f.intrinsics, camera_pitch) {
+                Ok((e, _)) => e,
+                Err(e) => {
+                    return StepOutcome::Suspended {
+                        reason: format!("depth frame does not match the intrinsics: {e}"),
+                    }
                 }
-            }
+            },
         };
         let speed = pose.vel_ned_mps.x.hypot(pose.vel_ned_mps.y);
         let decision = self.trigger.update(&Opportunity {
@@ -315,7 +320,7 @@ mod tests {
                 };
                 p.on_frame(FrameInput {
                     mono_ns: k as u64 * 33_333_333,
-                    depth: &img,
+                    depth: Some(&img),
                     intrinsics: &intr,
                     pose,
                     boot_us: Some(k as u64 * 33_333),
