@@ -133,7 +133,7 @@ pub fn open(
 fn recorded_depth(dir: &Path, live: bool) -> Result<Box<dyn DepthSource>, String> {
     let rec = Recording::open(dir).map_err(|e| e.to_string())?;
     Ok(if live {
-        return Err("replay = \"live\" is not in this build yet".into());
+        Box::new(rec.live().map_err(|e| e.to_string())?)
     } else {
         Box::new(rec)
     })
@@ -143,7 +143,7 @@ fn recorded_depth(dir: &Path, live: bool) -> Result<Box<dyn DepthSource>, String
 fn recorded_color(dir: &Path, live: bool) -> Result<Box<dyn FrameSource>, String> {
     let rec = Recording::open(dir).map_err(|e| e.to_string())?;
     Ok(if live {
-        return Err("replay = \"live\" is not in this build yet".into());
+        Box::new(rec.live().map_err(|e| e.to_string())?)
     } else {
         Box::new(rec)
     })

@@ -152,11 +152,27 @@ struct WriterReport {
     exports: Option<ExportSummary>,
 }
 
-/// Unix time (µs) of a monotonic instant, by the system clock now.
+/// Unix time (µs) of a monotonic instant. The offset between the two clocks
+/// is taken once (the tightest of a few paired readings): read afresh for
+/// every message, a thread paused between the two reads stamped telemetry
+/// out of order.
 fn unix_us_at(mono: u64) -> Option<u64> {
-    let now = SystemTime::now().duration_since(UNIX_EPOCH).ok()?;
-    let age_us = mono_ns().saturating_sub(mono) / 1000;
-    Some((now.as_micros() as u64).saturating_sub(age_us))
+    static OFFSET_US: std::sync::OnceLock<Option<i128>> = std::sync::OnceLock::new();
+    let offset = (*OFFSET_US.get_or_init(|| {
+        (0..5)
+            .filter_map(|_| {
+                let before = mono_ns();
+                let unix = SystemTime::now().duration_since(UNIX_EPOCH).ok()?;
+                let after = mono_ns();
+                Some((
+                    after - before,
+                    unix.as_micros() as i128 - (before / 1000) as i128,
+                ))
+            })
+            .min_by_key(|(spread, _)| *spread)
+            .map(|(_, off)| off)
+    }))?;
+    u64::try_from((mono / 1000) as i128 + offset).ok()
 }
 
 /// The first free `flight-NNN` under `root`.

@@ -1,8 +1,13 @@
 //! The `[mavlink]` section: raw TOML (unknown keys refused) checked once into a typed
-//! `LinkConfig`; errors name the key (`mavlink.<key>`).
+//! `LinkConfig`; errors name the key (`mavlink.<key>`). The signing key is read here, once, from
+//! a file only the service may read; it is never printed.
 
 use crate::core::geo::Geodetic;
 use serde::Deserialize;
+use std::fmt;
+use std::io::Read;
+use std::os::unix::fs::PermissionsExt;
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -59,6 +64,12 @@ pub struct RawLinkConfig {
     pub glitch_tolerance_m: f64,
     #[serde(default = "reanchor")]
     pub glitch_reanchor_ms: u64,
+    /// MAVLink 2 signing: a file holding the 32-byte secret as 64 hex characters.
+    pub signing_key_file: Option<PathBuf>,
+    /// Signing link id (default 0); only with `signing_key_file`.
+    pub signing_link_id: Option<u8>,
+    /// Accept unsigned frames while signing (default false); only with `signing_key_file`.
+    pub accept_unsigned: Option<bool>,
 }
 
 fn one() -> u8 {
@@ -123,6 +134,90 @@ pub struct LinkConfig {
     pub home: Option<Geodetic>,
     pub glitch_tolerance_m: f64,
     pub glitch_reanchor: Duration,
+    /// MAVLink 2 signing, when `signing_key_file` is set; `None`: nothing signed or checked.
+    pub signing: Option<Signing>,
+}
+
+/// MAVLink 2 signing settings, the key already read and checked.
+#[derive(Clone, PartialEq, Eq)]
+pub struct Signing {
+    pub key_file: PathBuf,
+    pub key: [u8; 32],
+    pub link_id: u8,
+    /// Unsigned (and MAVLink 1) frames are accepted too: for a transition only.
+    pub accept_unsigned: bool,
+}
+
+impl fmt::Debug for Signing {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Signing")
+            .field("key_file", &self.key_file)
+            .field("key", &"<redacted>")
+            .field("link_id", &self.link_id)
+            .field("accept_unsigned", &self.accept_unsigned)
+            .finish()
+    }
+}
+
+/// Read a signing key: 64 hex characters, optionally followed by one newline, in a regular file
+/// that group and others cannot access (as ssh insists for private keys). Errors never quote
+/// the file's content.
+pub fn read_signing_key(path: &Path) -> Result<[u8; 32], String> {
+    let shown = path.display();
+    let file = std::fs::File::open(path).map_err(|e| {
+        if e.kind() == std::io::ErrorKind::NotFound {
+            format!(
+                "{shown}: no such file (create it with `openssl rand -hex 32 > {shown} && chmod 600 {shown}`)"
+            )
+        } else {
+            format!("{shown}: cannot be read: {e}")
+        }
+    })?;
+    let meta = file
+        .metadata()
+        .map_err(|e| format!("{shown}: cannot be read: {e}"))?;
+    if !meta.is_file() {
+        return Err(format!("{shown}: not a regular file"));
+    }
+    let mode = meta.permissions().mode() & 0o777;
+    if mode & 0o077 != 0 {
+        return Err(format!(
+            "{shown}: accessible to group or others (mode {mode:04o}); run `chmod 600 {shown}`"
+        ));
+    }
+    let mut text = Vec::with_capacity(66);
+    file.take(1024)
+        .read_to_end(&mut text)
+        .map_err(|e| format!("{shown}: cannot be read: {e}"))?;
+    let hex = text
+        .strip_suffix(b"\r\n")
+        .or_else(|| text.strip_suffix(b"\n"))
+        .unwrap_or(&text);
+    if hex.len() != 64 {
+        return Err(format!(
+            "{shown}: expected 64 hex characters (a 32-byte key, e.g. `openssl rand -hex 32`), got {} bytes",
+            text.len()
+        ));
+    }
+    let mut key = [0u8; 32];
+    for (i, pair) in hex.chunks_exact(2).enumerate() {
+        let digit = |c: u8| (c as char).to_digit(16);
+        match (digit(pair[0]), digit(pair[1])) {
+            (Some(hi), Some(lo)) => key[i] = (hi * 16 + lo) as u8,
+            _ => {
+                return Err(format!(
+                    "{shown}: expected 64 hex characters, found a non-hex byte at offset {}",
+                    2 * i
+                ))
+            }
+        }
+    }
+    if key == [0u8; 32] {
+        return Err(format!(
+            "{shown}: an all-zero key means \"signing off\" to autopilots; generate one with `openssl rand -hex 32`"
+        ));
+    }
+    Ok(key)
 }
 
 impl LinkConfig {
@@ -220,6 +315,38 @@ impl TryFrom<RawLinkConfig> for LinkConfig {
                 "must be a positive number of metres",
             ));
         }
+        let signing = match r.signing_key_file {
+            None => {
+                if r.signing_link_id.is_some() {
+                    return Err(bad(
+                        "signing_link_id",
+                        "only meaningful with signing_key_file",
+                    ));
+                }
+                if r.accept_unsigned.is_some() {
+                    return Err(bad(
+                        "accept_unsigned",
+                        "only meaningful with signing_key_file",
+                    ));
+                }
+                None
+            }
+            Some(key_file) => {
+                if r.mavlink_version != 2 {
+                    return Err(bad(
+                        "signing_key_file",
+                        "signing needs mavlink_version = 2 (MAVLink 1 frames carry no signature)",
+                    ));
+                }
+                let key = read_signing_key(&key_file).map_err(|e| bad("signing_key_file", e))?;
+                Some(Signing {
+                    key_file,
+                    key,
+                    link_id: r.signing_link_id.unwrap_or(0),
+                    accept_unsigned: r.accept_unsigned.unwrap_or(false),
+                })
+            }
+        };
         let reconnect_initial = ms("reconnect_initial_ms", r.reconnect_initial_ms, 1, 60_000)?;
         let reconnect_max = ms("reconnect_max_ms", r.reconnect_max_ms, 1, 60_000)?;
         if reconnect_max < reconnect_initial {
@@ -247,6 +374,7 @@ impl TryFrom<RawLinkConfig> for LinkConfig {
             home,
             glitch_tolerance_m: r.glitch_tolerance_m,
             glitch_reanchor: ms("glitch_reanchor_ms", r.glitch_reanchor_ms, 0, 3_600_000)?,
+            signing,
         })
     }
 }

@@ -1,7 +1,8 @@
 //! The link task: connect (capped backoff between attempts), then one loop selecting on received
 //! messages, commands, the heartbeat and TIMESYNC ticks, and shutdown. A reader task per
 //! connection does the reads, each wrapped in a timeout; every send goes through `send_checked`,
-//! the one place the allow-list is enforced.
+//! the one place the allow-list is enforced. With signing configured, rust-mavlink signs every
+//! frame sent and drops, silently, every frame received that fails the check.
 
 use super::clock::mono_ns;
 use super::config::LinkConfig;
@@ -11,7 +12,9 @@ use crate::core::allowlist;
 use crate::core::backoff::reconnect_delay_ms;
 use mavlink::dialects::common::*;
 use mavlink::error::MessageReadError;
-use mavlink::{AsyncConnection, AsyncMavConnection, MavHeader, MavlinkVersion, Message};
+use mavlink::{
+    AsyncConnection, AsyncMavConnection, MavHeader, MavlinkVersion, Message, SigningConfig,
+};
 use std::future::Future;
 use std::sync::Arc;
 use std::time::Duration;
@@ -134,6 +137,16 @@ impl Link {
                     } else {
                         MavlinkVersion::V2
                     });
+                    if let Some(s) = &self.cfg.signing {
+                        // Fresh per connection: replay state (last timestamp per stream) starts
+                        // over at each reconnection; see docs/link.md.
+                        conn.setup_signing(Some(SigningConfig::new(
+                            s.key,
+                            s.link_id,
+                            true,
+                            s.accept_unsigned,
+                        )));
+                    }
                     self.tracker.health.connects += 1;
                     self.tracker.health.connected = true;
                     if self.serve_connection(Arc::new(conn), &mut shutdown).await {

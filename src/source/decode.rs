@@ -136,6 +136,33 @@ pub fn z16_to_depth(
         .map_err(|e: DepthFileError| DecodeError::Z16(e.to_string()))
 }
 
+/// A PNG (RGB, RGBA or grey, 8 or 16 bit) into RGB8.
+pub fn png_to_rgb(bytes: &[u8]) -> Result<ColorImage, String> {
+    let mut dec = png::Decoder::new(std::io::Cursor::new(bytes));
+    dec.set_transformations(png::Transformations::EXPAND | png::Transformations::STRIP_16);
+    let mut reader = dec.read_info().map_err(|e| e.to_string())?;
+    let size = reader
+        .output_buffer_size()
+        .ok_or_else(|| "image too large".to_string())?;
+    let mut buf = vec![0; size];
+    let info = reader.next_frame(&mut buf).map_err(|e| e.to_string())?;
+    let (w, h) = (info.width as usize, info.height as usize);
+    let rgb = match info.color_type {
+        png::ColorType::Rgb => buf[..w * h * 3].to_vec(),
+        png::ColorType::Rgba => buf[..w * h * 4]
+            .chunks_exact(4)
+            .flat_map(|p| [p[0], p[1], p[2]])
+            .collect(),
+        png::ColorType::Grayscale => buf[..w * h].iter().flat_map(|&l| [l, l, l]).collect(),
+        other => return Err(format!("unsupported PNG colour type {other:?}")),
+    };
+    Ok(ColorImage {
+        width: w,
+        height: h,
+        rgb,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -47,10 +47,40 @@ pub enum SourceError {
     Fatal(String),
 }
 
+/// A colour frame as the camera delivered it. Decoding is left to the frame
+/// that is captured: at 30 fps, decoding every frame cost more than the whole
+/// estimator (`docs/daemon-load.md`).
+#[derive(Debug, Clone, PartialEq)]
+pub enum RawColor {
+    Rgb(ColorImage),
+    Mjpeg(Vec<u8>),
+    Yuyv {
+        width: usize,
+        height: usize,
+        data: Vec<u8>,
+    },
+    Png(Vec<u8>),
+}
+
+impl RawColor {
+    pub fn decode(&self) -> Result<ColorImage, String> {
+        match self {
+            RawColor::Rgb(c) => Ok(c.clone()),
+            RawColor::Mjpeg(b) => decode::mjpeg_to_rgb(b).map_err(|e| e.to_string()),
+            RawColor::Yuyv {
+                width,
+                height,
+                data,
+            } => decode::yuyv_to_rgb(*width, *height, data).map_err(|e| e.to_string()),
+            RawColor::Png(b) => decode::png_to_rgb(b),
+        }
+    }
+}
+
 /// A colour camera.
 pub trait FrameSource: Send {
     /// The next frame, blocking until it arrives; `None` at the end of a replay.
-    fn next_frame(&mut self) -> Result<Option<Stamped<ColorImage>>, SourceError>;
+    fn next_frame(&mut self) -> Result<Option<Stamped<RawColor>>, SourceError>;
 }
 
 /// A depth camera.
@@ -71,7 +101,7 @@ pub trait FrameAt: Send {
 /// picks the nearest one within `tolerance_ns`.
 #[derive(Clone)]
 pub struct FrameRing {
-    inner: std::sync::Arc<std::sync::Mutex<std::collections::VecDeque<Stamped<ColorImage>>>>,
+    inner: std::sync::Arc<std::sync::Mutex<std::collections::VecDeque<Stamped<RawColor>>>>,
     capacity: usize,
     tolerance_ns: u64,
 }
@@ -85,7 +115,7 @@ impl FrameRing {
         }
     }
 
-    pub fn push(&self, f: Stamped<ColorImage>) {
+    pub fn push(&self, f: Stamped<RawColor>) {
         let mut q = self.inner.lock().unwrap_or_else(|p| p.into_inner());
         while q.len() >= self.capacity {
             q.pop_front();
@@ -96,11 +126,20 @@ impl FrameRing {
 
 impl FrameAt for FrameRing {
     fn frame_at(&mut self, mono_ns: u64) -> Option<Stamped<ColorImage>> {
-        let q = self.inner.lock().unwrap_or_else(|p| p.into_inner());
-        q.iter()
-            .min_by_key(|f| f.mono_ns.abs_diff(mono_ns))
-            .filter(|f| f.mono_ns.abs_diff(mono_ns) <= self.tolerance_ns)
-            .cloned()
+        let raw = {
+            let q = self.inner.lock().unwrap_or_else(|p| p.into_inner());
+            q.iter()
+                .min_by_key(|f| f.mono_ns.abs_diff(mono_ns))
+                .filter(|f| f.mono_ns.abs_diff(mono_ns) <= self.tolerance_ns)
+                .cloned()?
+        };
+        // Decoded outside the lock, only for the frame that is captured.
+        let data = raw.data.decode().ok()?;
+        Some(Stamped {
+            mono_ns: raw.mono_ns,
+            seq: raw.seq,
+            data,
+        })
     }
 }
 
@@ -108,15 +147,15 @@ impl FrameAt for FrameRing {
 mod ring_tests {
     use super::*;
 
-    fn frame(mono_ns: u64) -> Stamped<ColorImage> {
+    fn frame(mono_ns: u64) -> Stamped<RawColor> {
         Stamped {
             mono_ns,
             seq: mono_ns,
-            data: ColorImage {
+            data: RawColor::Rgb(ColorImage {
                 width: 1,
                 height: 1,
                 rgb: vec![0; 3],
-            },
+            }),
         }
     }
 

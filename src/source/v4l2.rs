@@ -3,9 +3,9 @@
 //! this file only owns the device: finding it, streaming, and telling a lost
 //! device (reopen) from a bad frame (skip).
 
-use super::decode::{mjpeg_to_rgb, yuyv_to_rgb, z16_to_depth};
+use super::decode::z16_to_depth;
 use super::select::{DeviceInfo, DeviceSelector};
-use super::{ColorImage, DepthSource, FrameSource, SourceError, Stamped};
+use super::{DepthSource, FrameSource, RawColor, SourceError, Stamped};
 use crate::core::{DepthImage, Intrinsics};
 use std::path::{Path, PathBuf};
 use v4l::buffer::Type;
@@ -222,17 +222,18 @@ impl V4l2Color {
 }
 
 impl FrameSource for V4l2Color {
-    fn next_frame(&mut self) -> Result<Option<Stamped<ColorImage>>, SourceError> {
+    fn next_frame(&mut self) -> Result<Option<Stamped<RawColor>>, SourceError> {
         let (buf, mono_ns, seq) = self.stream.next()?;
-        let decoded = if self.stream.fourcc == "MJPG" {
-            mjpeg_to_rgb(&buf)
+        // Kept as delivered: only a captured frame is decoded.
+        let data = if self.stream.fourcc == "MJPG" {
+            RawColor::Mjpeg(buf.to_vec())
         } else {
-            yuyv_to_rgb(self.stream.width, self.stream.height, &buf)
+            RawColor::Yuyv {
+                width: self.stream.width,
+                height: self.stream.height,
+                data: buf.to_vec(),
+            }
         };
-        let data = decoded.map_err(|e| SourceError::BadFrame {
-            seq,
-            reason: e.to_string(),
-        })?;
         Ok(Some(Stamped { mono_ns, seq, data }))
     }
 }
