@@ -34,6 +34,12 @@ const PERIOD_NS: u64 = 33_333_333;
 const SCALE_M: f64 = 0.01;
 const WARM_UP: Duration = Duration::from_secs(5);
 
+/// Telemetry stream rate, Hz, of each of the three pose streams
+/// (`ALFD_BENCH_TELEMETRY_HZ`; 700 gives the soak's 2,000+ messages/s).
+fn telemetry_hz() -> f64 {
+    env_u64("ALFD_BENCH_TELEMETRY_HZ", 10).max(1) as f64
+}
+
 fn env_u64(name: &str, default: u64) -> u64 {
     std::env::var(name)
         .ok()
@@ -84,14 +90,15 @@ fn render_recording(scene: &Scene, dir: &Path) -> f64 {
 }
 
 fn config_text(address: &str, recording: &Path, captures: &Path, model: &str) -> String {
+    let hz = telemetry_hz();
     format!(
         r#"[mavlink]
 address = "{address}"
 system_id = 1
 component_id = 100
 accept_system_ids = [1, 255]
-position_hz = 10.0
-attitude_hz = 10.0
+position_hz = {hz}
+attitude_hz = {hz}
 
 [camera]
 source = "recorded"
@@ -178,6 +185,8 @@ struct RunFigures {
     bad: Option<u64>,
     lifetime_s: f64,
     stopped_line: Option<String>,
+    /// What firmware-sim sent during the measured window, messages/s.
+    telemetry_msgs_per_s: f64,
 }
 
 /// The numbers of the daemon's last words: "stopped: N captures in DIR, M
@@ -223,9 +232,10 @@ fn run_daemon(
     sc.survey.speed_mps = 10.0;
     sc.survey.wind_m = 0.0;
     sc.survey.wind_deg = 0.0;
-    sc.streams.attitude_quaternion = 10.0;
-    sc.streams.global_position_int = 10.0;
-    sc.streams.local_position_ned = 10.0;
+    let hz = telemetry_hz();
+    sc.streams.attitude_quaternion = hz;
+    sc.streams.global_position_int = hz;
+    sc.streams.local_position_ned = hz;
     let sim = rt
         .block_on(firmware_sim::start(sc))
         .expect("firmware-sim starts");
@@ -265,6 +275,7 @@ fn run_daemon(
     let (rss, _) = memory_mib(pid).expect("the daemon is running after the warm-up");
     f.rss_warm_mib = rss;
     let captures_warm = manifest_lines(&captures);
+    let sent_warm = sim.stats().frames_sent;
     let t0 = Instant::now();
     let mut last = (
         t0,
@@ -290,6 +301,8 @@ fn run_daemon(
     f.cpu_mean_pct = 100.0 * (last.1 - first_cpu) / (last.0 - t0).as_secs_f64().max(1e-9);
     f.cpu_max_pct = f.cpu_per_second_pct.iter().copied().fold(0.0, f64::max);
     f.captures_in_window = manifest_lines(&captures).saturating_sub(captures_warm);
+    f.telemetry_msgs_per_s =
+        (sim.stats().frames_sent - sent_warm) as f64 / (last.0 - t0).as_secs_f64().max(1e-9);
 
     // SAFETY: kill sends a signal to the child we started, by its id.
     unsafe { libc::kill(pid as libc::pid_t, libc::SIGTERM) };
@@ -427,6 +440,7 @@ fn figures_json(f: &RunFigures) -> serde_json::Value {
     let window_s = f.cpu_per_second_pct.len() as f64;
     json!({
         "model": f.model,
+        "telemetry_msgs_per_s": f.telemetry_msgs_per_s,
         "cpu_mean_pct_of_one_core": f.cpu_mean_pct,
         "cpu_max_per_second_pct": f.cpu_max_pct,
         "cpu_per_second_pct": f.cpu_per_second_pct,
@@ -471,7 +485,13 @@ fn main() {
         .expect("a runtime");
     let alt = scene.survey.altitude_m;
     let mut runs = Vec::new();
-    for model in ["fixed", "occlusion"] {
+    // `ALFD_BENCH_MODELS=occlusion` for a soak of the occlusion model alone.
+    let models: Vec<String> = std::env::var("ALFD_BENCH_MODELS")
+        .unwrap_or_else(|_| "fixed,occlusion".into())
+        .split(',')
+        .map(str::to_string)
+        .collect();
+    for model in models.iter().map(String::as_str) {
         println!("daemon: {model}: {WARM_UP:?} warm-up, then {secs} s measured");
         runs.push(run_daemon(
             &rt,
@@ -492,7 +512,18 @@ fn main() {
             "occlusion",
         ),
     );
-    let (base, occ) = (&runs[0], &runs[1]);
+    let occ = runs
+        .iter()
+        .find(|r| r.model != "fixed")
+        .unwrap_or(&runs[runs.len() - 1]);
+    // A soak of one model alone has no baseline: both columns are that run.
+    let base = runs.iter().find(|r| r.model == "fixed").unwrap_or(occ);
+    if std::ptr::eq(base, occ) {
+        println!(
+            "daemon: one model run ({}), no baseline in this run",
+            occ.model
+        );
+    }
 
     println!();
     println!(
@@ -517,6 +548,7 @@ fn main() {
         ("captures/s in window", |r| {
             r.captures_in_window as f64 / r.cpu_per_second_pct.len().max(1) as f64
         }),
+        ("telemetry messages/s", |r| r.telemetry_msgs_per_s),
         ("depth frames/s", |r| {
             r.depth_frames.map_or(f64::NAN, |d| d as f64 / r.lifetime_s)
         }),

@@ -292,12 +292,22 @@ fn estimator_thread(
     let mut pipeline: Option<Pipeline> = None;
     let state = ctx.link.state();
     // Without a depth frame for this long the camera has stalled: the trigger
-    // still gets opportunities, at the fallback spacing, flagged.
+    // still gets opportunities, at the fallback spacing, flagged; one per
+    // frame period while the stall lasts, the step the trigger assumes.
     let stall = Duration::from_secs_f64((5.0 / cfg.depth.fps).max(0.15));
+    let period = Duration::from_secs_f64(1.0 / cfg.depth.fps);
+    let mut stalled = false;
     loop {
-        let frame = match rx.recv_timeout(stall) {
-            Ok(f) => Some(f),
-            Err(std::sync::mpsc::RecvTimeoutError::Timeout) => None,
+        let wait = if stalled { period } else { stall };
+        let frame = match rx.recv_timeout(wait) {
+            Ok(f) => {
+                stalled = false;
+                Some(f)
+            }
+            Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {
+                stalled = true;
+                None
+            }
             Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => return,
         };
         if ctx.stop.load(Ordering::Relaxed) {
