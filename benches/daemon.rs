@@ -224,11 +224,14 @@ fn run_daemon(
         },
         ..SimConfig::default()
     };
-    sc.survey.pattern = firmware_sim::Pattern::Line;
+    // A lawnmower long enough for the whole run: the vehicle keeps flying
+    // (and the trigger keeps capturing) instead of hovering at a line's end.
+    sc.survey.pattern = firmware_sim::Pattern::Lawnmower;
+    sc.survey.lane_spacing_m = 10.0;
+    sc.survey.lanes = (((secs as f64 + 10.0) * 10.0 / length_m.max(1.0)).ceil() as u32 + 2).max(2);
     sc.survey.altitude_m = altitude_m;
     sc.survey.heading_deg = 0.0;
     sc.survey.length_m = length_m;
-    sc.survey.lanes = 1;
     sc.survey.speed_mps = 10.0;
     sc.survey.wind_m = 0.0;
     sc.survey.wind_deg = 0.0;

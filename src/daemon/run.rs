@@ -108,7 +108,11 @@ pub struct RunReport {
     pub tlog_frames: u64,
     pub exports: Option<ExportSummary>,
     pub link: LinkHealth,
+    /// The first STATUSTEXTs sent (at most 1000), and how many more.
     pub statustexts: Vec<String>,
+    pub statustexts_dropped: u64,
+    /// Capture errors beyond the first 1000 kept in `capture_errors`.
+    pub capture_errors_dropped: u64,
     pub estimator_busy_ns: u64,
 }
 
@@ -143,10 +147,14 @@ enum WriterEvent {
     },
 }
 
+/// Messages and errors kept in a run's report; beyond, only counted.
+const REPORT_KEEP: usize = 1000;
+
 #[derive(Default)]
 struct WriterReport {
     records: Vec<CaptureRecord>,
     errors: Vec<String>,
+    errors_dropped: u64,
     frames_missing: u64,
     tlog_frames: u64,
     exports: Option<ExportSummary>,
@@ -454,7 +462,11 @@ fn writer_thread(
                     Ok(()) => WriterEvent::Logged(record),
                     Err(e) => {
                         let error = format!("capture {seq} not logged: {e}");
-                        report.errors.push(error.clone());
+                        if report.errors.len() < REPORT_KEEP {
+                            report.errors.push(error.clone());
+                        } else {
+                            report.errors_dropped += 1;
+                        }
                         WriterEvent::Failed { record, error }
                     }
                 };
@@ -729,6 +741,7 @@ pub async fn run(
     report.frames_bad = counters.bad_frames.load(Ordering::Relaxed);
     report.frames_missed_by_source = counters.source_gaps.load(Ordering::Relaxed);
     report.capture_errors.extend(wreport.errors);
+    report.capture_errors_dropped = wreport.errors_dropped;
     report.frames_missing = wreport.frames_missing;
     report.tlog_frames = wreport.tlog_frames;
     report.exports = wreport.exports;
@@ -801,7 +814,13 @@ impl Coordinator {
 
     async fn status(&mut self, severity: MavSeverity, text: &str) {
         tracing::info!("{text}");
-        self.report.statustexts.push(text.to_string());
+        // A long flight must not grow memory with its messages: the first
+        // ones are kept for the report, the rest counted.
+        if self.report.statustexts.len() < REPORT_KEEP {
+            self.report.statustexts.push(text.to_string());
+        } else {
+            self.report.statustexts_dropped += 1;
+        }
         for m in CameraProtocol::statustext(severity, text) {
             let _ = self.link.send(m).await;
         }
