@@ -7,8 +7,13 @@ use super::store::{CaptureStore, StoreError};
 const STX_V1: u8 = 0xFE;
 const STX_V2: u8 = 0xFD;
 const SIGNATURE_LEN: usize = 13;
-/// Timestamp + the longest frame (signed MAVLink 2 with a 255-byte payload).
-const MAX_ENTRY_LEN: usize = 8 + 12 + 255 + SIGNATURE_LEN;
+/// MAVLink 2 incompatibility flags: signed, and the 32-bit system id extension
+/// rust-mavlink reads (three more header bytes).
+const IFLAG_SIGNED: u8 = 0x01;
+const IFLAG_SYSID32: u8 = 0x02;
+const SYSID32_EXTRA: usize = 3;
+/// Timestamp + the longest frame (signed MAVLink 2, 32-bit system id, 255-byte payload).
+const MAX_ENTRY_LEN: usize = 8 + 12 + SYSID32_EXTRA + 255 + SIGNATURE_LEN;
 
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum TlogError {
@@ -21,14 +26,24 @@ pub enum TlogError {
 }
 
 /// Length of the MAVLink frame that starts `bytes`, from its header alone (v1:
-/// 8 + payload; v2: 12 + payload, + 13 when signed); `None` if it does not start
-/// with a start byte or the header is incomplete.
+/// 8 + payload; v2: 12 + payload, + 13 when signed, + 3 with a 32-bit system
+/// id); `None` if it does not start with a start byte or the header is incomplete.
 pub fn frame_len(bytes: &[u8]) -> Option<usize> {
     match *bytes {
         [STX_V1, len, ..] => Some(8 + len as usize),
-        [STX_V2, len, incompat, ..] => {
-            Some(12 + len as usize + if incompat & 1 != 0 { SIGNATURE_LEN } else { 0 })
-        }
+        [STX_V2, len, incompat, ..] => Some(
+            12 + len as usize
+                + if incompat & IFLAG_SIGNED != 0 {
+                    SIGNATURE_LEN
+                } else {
+                    0
+                }
+                + if incompat & IFLAG_SYSID32 != 0 {
+                    SYSID32_EXTRA
+                } else {
+                    0
+                },
+        ),
         _ => None,
     }
 }

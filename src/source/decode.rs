@@ -29,9 +29,13 @@ pub fn yuyv_to_rgb(width: usize, height: usize, buf: &[u8]) -> Result<ColorImage
     if width % 2 != 0 {
         return Err(DecodeError::YuyvOddWidth(width));
     }
-    let expected = width * height * 2;
+    // Sizes come from the driver: an overflowing product is a size no buffer has.
+    let expected = width
+        .checked_mul(height)
+        .and_then(|n| n.checked_mul(2))
+        .unwrap_or(usize::MAX);
     // Drivers may pad the buffer (bytesused > image); never read less.
-    if buf.len() < expected {
+    if buf.len() < expected || expected == usize::MAX {
         return Err(DecodeError::YuyvSize {
             width,
             height,
@@ -61,6 +65,15 @@ fn ycbcr_to_rgb(y: u8, u: u8, v: u8) -> [u8; 3] {
     ]
 }
 
+/// Largest frame decoded: 8K UHD.
+const MJPEG_MAX_PIXELS: usize = 7680 * 4320;
+/// Pixels per compressed byte beyond which a frame's header is not believed
+/// (a flat 8×8 block costs a few bits; real frames stay far below this).
+const MJPEG_MAX_EXPANSION: usize = 2000;
+/// Bytes a PNG may expand to per compressed byte before its header is not
+/// believed (deflate's limit is about 1032).
+const PNG_MAX_EXPANSION: usize = 1100;
+
 /// An MJPEG frame to RGB8. UVC cameras drop the Huffman tables from each
 /// frame; the decoder then uses the standard tables (JPEG Annex K), as the UVC
 /// MJPEG payload specification says.
@@ -80,6 +93,23 @@ pub fn mjpeg_to_rgb(buf: &[u8]) -> Result<ColorImage, DecodeError> {
         buf
     };
     let mut dec = jpeg_decoder::Decoder::new(buf);
+    // The header's size decides the allocation: a corrupted frame claiming
+    // 24600×60927 px made the decoder allocate 1.5 GB (found by fuzzing).
+    // A frame is refused when it claims more than MJPEG_MAX_PIXELS or more
+    // pixels than its compressed bytes could plausibly carry.
+    dec.read_info()
+        .map_err(|e| DecodeError::Mjpeg(e.to_string()))?;
+    if let Some(info) = dec.info() {
+        let pixels = info.width as usize * info.height as usize;
+        if pixels > MJPEG_MAX_PIXELS || pixels > buf.len().saturating_mul(MJPEG_MAX_EXPANSION) {
+            return Err(DecodeError::Mjpeg(format!(
+                "header claims {}x{} px from {} bytes",
+                info.width,
+                info.height,
+                buf.len()
+            )));
+        }
+    }
     let pixels = dec
         .decode()
         .map_err(|e| DecodeError::Mjpeg(e.to_string()))?;
@@ -144,6 +174,13 @@ pub fn png_to_rgb(bytes: &[u8]) -> Result<ColorImage, String> {
     let size = reader
         .output_buffer_size()
         .ok_or_else(|| "image too large".to_string())?;
+    // The header decides the allocation: no more than the data can inflate to.
+    if size > bytes.len().saturating_mul(PNG_MAX_EXPANSION) {
+        return Err(format!(
+            "header claims {size} bytes of pixels from a {}-byte file",
+            bytes.len()
+        ));
+    }
     let mut buf = vec![0; size];
     let info = reader.next_frame(&mut buf).map_err(|e| e.to_string())?;
     let (w, h) = (info.width as usize, info.height as usize);
