@@ -321,19 +321,7 @@ impl Estimator {
             valid_samples: self.grid.valid,
             sky_samples: self.grid.sky,
             valid_fraction: self.grid.valid as f64 / samples as f64,
-            pitch_rad: if pitch_rad.is_finite() {
-                pitch_rad
-            } else {
-                0.0
-            },
-            inv_depth: None,
-            occlusion: None,
-            plane: None,
-            spacing: Spacings::default(),
-            active_bound: None,
-            terms: Terms::default(),
-            pitch_scores: Vec::new(),
-            best_pitch: None,
+            ..Estimate::without_depth(pitch_rad)
         };
         if !pitch_rad.is_finite() {
             est.no_estimate = Some(NoEstimate::InvalidPitch);

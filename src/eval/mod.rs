@@ -6,7 +6,7 @@
 //! reading: `docs/eval.md`.
 
 pub mod plan;
-mod plot;
+pub(crate) mod plot;
 pub mod recon;
 mod report;
 

@@ -86,7 +86,9 @@ fn panel<DB: DrawingBackend>(
     Ok(())
 }
 
-fn save(
+/// Draws into a 960×720 white bitmap with the shipped font and writes it as
+/// PNG (shared by `alfd eval` and `alfd sim`'s plots).
+pub(crate) fn save(
     path: &Path,
     draw: impl FnOnce(&DrawingArea<BitMapBackend, plotters::coord::Shift>) -> Result<(), String>,
 ) -> Result<(), String> {

@@ -8,7 +8,6 @@ use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
 use plotters::prelude::*;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
-use std::sync::Once;
 
 const W: u32 = 960;
 const H: u32 = 720;
@@ -27,31 +26,7 @@ const TRACK: RGBColor = RGBColor(150, 150, 150);
 /// Above this ratio of largest to smallest, the spacing axis is logarithmic.
 const LOG_RANGE: f64 = 20.0;
 
-static FONT: Once = Once::new();
-
-fn font() {
-    FONT.call_once(|| {
-        let bytes: &'static [u8] = include_bytes!("../../assets/fonts/DejaVuSans.ttf");
-        // A font that fails to load only costs the labels.
-        let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, bytes);
-    });
-}
-
-fn save(
-    path: &Path,
-    draw: impl FnOnce(&DrawingArea<BitMapBackend, plotters::coord::Shift>) -> Result<(), String>,
-) -> Result<(), String> {
-    font();
-    let mut buf = vec![255u8; (W * H * 3) as usize];
-    {
-        let root = BitMapBackend::with_buffer(&mut buf, (W, H)).into_drawing_area();
-        root.fill(&WHITE).map_err(|e| e.to_string())?;
-        draw(&root)?;
-        root.present().map_err(|e| e.to_string())?;
-    }
-    crate::render::write_png(path, W as usize, H as usize, &buf)
-        .map_err(|e| format!("{}: {e}", path.display()))
-}
+use crate::eval::plot::save;
 
 /// The unbroken pieces of one line.
 type Runs = Vec<Vec<(f64, f64)>>;
