@@ -58,53 +58,36 @@ pub trait CaptureStore {
     fn manifest_bytes(&self) -> Result<Vec<u8>, StoreError>;
 }
 
-impl<S: CaptureStore + ?Sized> CaptureStore for &mut S {
-    fn write_image(&mut self, name: &str, bytes: &[u8]) -> Result<(), StoreError> {
-        (**self).write_image(name, bytes)
-    }
-    fn append_manifest_line(&mut self, line: &str) -> Result<(), StoreError> {
-        (**self).append_manifest_line(line)
-    }
-    fn write_export(&mut self, name: &str, bytes: &[u8]) -> Result<(), StoreError> {
-        (**self).write_export(name, bytes)
-    }
-    fn append_telemetry(&mut self, bytes: &[u8]) -> Result<(), StoreError> {
-        (**self).append_telemetry(bytes)
-    }
-    fn sync_telemetry(&mut self) -> Result<(), StoreError> {
-        (**self).sync_telemetry()
-    }
-    fn free_bytes(&self) -> Option<u64> {
-        (**self).free_bytes()
-    }
-    fn manifest_bytes(&self) -> Result<Vec<u8>, StoreError> {
-        (**self).manifest_bytes()
-    }
+/// A store behind a reference or a box is the store itself.
+macro_rules! forward_store {
+    ($($ty:ty),*) => {$(
+        impl<S: CaptureStore + ?Sized> CaptureStore for $ty {
+            fn write_image(&mut self, name: &str, bytes: &[u8]) -> Result<(), StoreError> {
+                (**self).write_image(name, bytes)
+            }
+            fn append_manifest_line(&mut self, line: &str) -> Result<(), StoreError> {
+                (**self).append_manifest_line(line)
+            }
+            fn write_export(&mut self, name: &str, bytes: &[u8]) -> Result<(), StoreError> {
+                (**self).write_export(name, bytes)
+            }
+            fn append_telemetry(&mut self, bytes: &[u8]) -> Result<(), StoreError> {
+                (**self).append_telemetry(bytes)
+            }
+            fn sync_telemetry(&mut self) -> Result<(), StoreError> {
+                (**self).sync_telemetry()
+            }
+            fn free_bytes(&self) -> Option<u64> {
+                (**self).free_bytes()
+            }
+            fn manifest_bytes(&self) -> Result<Vec<u8>, StoreError> {
+                (**self).manifest_bytes()
+            }
+        }
+    )*};
 }
 
-impl<S: CaptureStore + ?Sized> CaptureStore for Box<S> {
-    fn write_image(&mut self, name: &str, bytes: &[u8]) -> Result<(), StoreError> {
-        (**self).write_image(name, bytes)
-    }
-    fn append_manifest_line(&mut self, line: &str) -> Result<(), StoreError> {
-        (**self).append_manifest_line(line)
-    }
-    fn write_export(&mut self, name: &str, bytes: &[u8]) -> Result<(), StoreError> {
-        (**self).write_export(name, bytes)
-    }
-    fn append_telemetry(&mut self, bytes: &[u8]) -> Result<(), StoreError> {
-        (**self).append_telemetry(bytes)
-    }
-    fn sync_telemetry(&mut self) -> Result<(), StoreError> {
-        (**self).sync_telemetry()
-    }
-    fn free_bytes(&self) -> Option<u64> {
-        (**self).free_bytes()
-    }
-    fn manifest_bytes(&self) -> Result<Vec<u8>, StoreError> {
-        (**self).manifest_bytes()
-    }
-}
+forward_store!(&mut S, Box<S>);
 
 /// Names are ours (derived from sequence numbers or fixed), never received strings;
 /// this keeps a bug from writing outside the directory or over a temporary file.

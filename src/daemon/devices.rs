@@ -18,13 +18,31 @@ use std::sync::{Arc, OnceLock};
 /// Where the telemetry pose comes from once the link exists.
 pub type LinkSlot = Arc<OnceLock<LinkHandle>>;
 
-fn intrinsics(s: &SourceConfig) -> Result<Intrinsics, String> {
+pub(crate) fn intrinsics(s: &SourceConfig) -> Result<Intrinsics, String> {
     Intrinsics::from_hfov_deg(s.width, s.height, s.hfov_deg, s.principal_px)
         .map_err(|e| format!("intrinsics: {e}"))
 }
 
-/// The synthetic camera's pose from the telemetry (scene x = north from the
-/// line's start, y = west, z = up), or `None` while there is none.
+/// The synthetic camera at a local NED position: the scene's survey line
+/// starts at its `start_x_m` and heads north along +x; west is +y; up is +z.
+pub fn scene_camera_pose(
+    scene: &Scene,
+    mount_pitch_rad: f64,
+    ned: [f64; 3],
+    pitch_rad: f64,
+) -> CameraPose {
+    CameraPose {
+        position_m: [
+            scene.survey.start_x_m + ned[0],
+            scene.survey.y_m - ned[1],
+            -ned[2],
+        ],
+        pitch_rad: mount_pitch_rad + pitch_rad,
+    }
+}
+
+/// The synthetic camera's pose from the telemetry ([`scene_camera_pose`]), or
+/// `None` while there is none.
 pub fn telemetry_pose(
     scene: Arc<Scene>,
     mount_pitch_rad: f64,
@@ -35,11 +53,12 @@ pub fn telemetry_pose(
         let link = slot.get()?;
         let p = rt.block_on(link.pose_at_mono_ns(t)).ok()?;
         let (_, pitch, _) = p.q.to_euler(glam::EulerRot::ZYX);
-        let n = p.pos_ned_m;
-        Some(CameraPose {
-            position_m: [scene.survey.start_x_m + n.x, scene.survey.y_m - n.y, -n.z],
-            pitch_rad: mount_pitch_rad + pitch,
-        })
+        Some(scene_camera_pose(
+            &scene,
+            mount_pitch_rad,
+            p.pos_ned_m.to_array(),
+            pitch,
+        ))
     }
 }
 

@@ -3,9 +3,10 @@
 //! judged against the simulator's truth (`simreport`). Everything the flight
 //! uses runs here too: the link, the pipeline, the writer, the exports.
 
+use super::devices::{intrinsics, scene_camera_pose};
 use super::run::{run, Devices, FrameSample, Frames, RunError, RunOptions, RunReport, SampleHook};
 use crate::capture::CaptureMode;
-use crate::config::{Config, SimPose, SourceConfig};
+use crate::config::{Config, SimPose};
 use crate::core::{Intrinsics, Model};
 use crate::link::{mono_ns, LinkHandle};
 use crate::notify::Notifier;
@@ -165,23 +166,6 @@ pub struct SimOutcome {
     pub sim_triggers: Vec<(u64, u32)>,
     pub sim_events_lost: u64,
     pub sim_stats: firmware_sim::SimStats,
-}
-
-/// Scene coordinates of a local NED position: the survey line starts at the
-/// scene's `start_x_m` and heads north along +x; west is +y; up is +z.
-pub fn scene_position(scene: &Scene, ned: [f64; 3]) -> [f64; 3] {
-    [
-        scene.survey.start_x_m + ned[0],
-        scene.survey.y_m - ned[1],
-        -ned[2],
-    ]
-}
-
-fn camera_pose(scene: &Scene, mount_pitch_rad: f64, ned: [f64; 3], pitch_rad: f64) -> CameraPose {
-    CameraPose {
-        position_m: scene_position(scene, ned),
-        pitch_rad: mount_pitch_rad + pitch_rad,
-    }
 }
 
 fn sim_config_text(a: &SimArgs, scene_path: &Path, flight_dir: &Path, scene: &Scene) -> String {
@@ -379,7 +363,7 @@ pub async fn run_sim_with(
                 let sim = sim.clone();
                 Box::new(move |t: u64| {
                     let tr = sim.truth_at_mono_ns(t);
-                    Some(camera_pose(
+                    Some(scene_camera_pose(
                         &scene,
                         mount,
                         tr.pos_ned_m,
@@ -395,7 +379,7 @@ pub async fn run_sim_with(
             )),
         }
     };
-    let intr = intrinsics(&config.depth).map_err(setup)?;
+    let intr = intrinsics(&config.depth).map_err(|e| setup(format!("depth: {e}")))?;
     let sensor = SensorModel {
         scale_m: config.depth.scale_m,
         noise_per_m: config.depth.noise_per_m,
@@ -569,11 +553,6 @@ pub async fn run_sim_with(
     })
 }
 
-fn intrinsics(s: &SourceConfig) -> Result<Intrinsics, String> {
-    Intrinsics::from_hfov_deg(s.width, s.height, s.hfov_deg, s.principal_px)
-        .map_err(|e| format!("depth intrinsics: {e}"))
-}
-
 /// True poses at the daemon's frame instants, with the distance flown along
 /// the truth path; and the daemon's own estimates at the same places.
 fn truth_track(
@@ -593,7 +572,7 @@ fn truth_track(
             along += (tr.pos_ned_m[0] - l[0]).hypot(tr.pos_ned_m[1] - l[1]);
         }
         last = Some(tr.pos_ned_m);
-        let cp = camera_pose(
+        let cp = scene_camera_pose(
             scene,
             config.depth.mount_pitch_rad,
             tr.pos_ned_m,
