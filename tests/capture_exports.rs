@@ -1,6 +1,8 @@
 //! The exports against their formats: `geo.txt` lines, `transforms.json` fields and
 //! matrices, EXIF GPS read back by exiftool, and `telemetry.tlog` entries.
 
+mod tools;
+
 use std::fs;
 use std::process::Command;
 
@@ -185,21 +187,6 @@ fn transforms_json_is_not_written_without_any_camera() {
     assert_eq!(store.exports[GEO_TXT], b"EPSG:4326\n");
 }
 
-fn exiftool() -> Option<()> {
-    let found = Command::new("exiftool")
-        .arg("-ver")
-        .output()
-        .is_ok_and(|o| o.status.success());
-    if found {
-        return Some(());
-    }
-    if std::env::var_os("CI").is_some() {
-        panic!("exiftool is missing in CI: scripts/setup.sh installs libimage-exiftool-perl");
-    }
-    eprintln!("SKIPPED: exiftool not installed (run scripts/setup.sh); CI runs this test");
-    None
-}
-
 #[test]
 fn exif_gps_in_logged_jpegs_reads_back_with_exiftool() {
     let tmp = tempfile::tempdir().unwrap();
@@ -219,7 +206,9 @@ fn exif_gps_in_logged_jpegs_reads_back_with_exiftool() {
         assert_eq!(p.gps_time_unix_us, r.time_unix_us);
         log_capture(&mut store, r, Some(&jpeg)).unwrap();
     }
-    let Some(()) = exiftool() else { return };
+    if !tools::exiftool("exif_gps_in_logged_jpegs_reads_back_with_exiftool") {
+        return;
+    }
     let manifest = read_manifest(&store.manifest_path()).unwrap();
     let names: Vec<String> = manifest
         .records

@@ -3,6 +3,8 @@
 //! exports against their formats, and the simulator's own view of what alfd
 //! commanded against the manifest.
 
+mod tools;
+
 use alfd::capture::{parse_exif_gps, read_manifest, tlog, CaptureMode, CaptureRecord};
 use alfd::daemon::sim::{run_sim, SimArgs, SimOutcome};
 use std::path::Path;
@@ -20,20 +22,6 @@ fn args(out: &Path, mode: CaptureMode) -> SimArgs {
         scene: Some(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/tower.toml")),
         ..SimArgs::default()
     }
-}
-
-fn exiftool_present() -> bool {
-    let found = std::process::Command::new("exiftool")
-        .arg("-ver")
-        .output()
-        .is_ok_and(|o| o.status.success());
-    if !found && std::env::var_os("CI").is_some() {
-        panic!("exiftool is missing in CI: scripts/setup.sh installs libimage-exiftool-perl");
-    }
-    if !found {
-        eprintln!("SKIPPED the exiftool read-back: exiftool not installed (scripts/setup.sh)");
-    }
-    found
 }
 
 async fn sim(mode: CaptureMode) -> (tempfile::TempDir, SimOutcome) {
@@ -105,7 +93,7 @@ async fn frame_mode_logs_images_at_the_true_poses_with_valid_exports() {
         assert_eq!((intr.width, intr.height), (160, 120));
     }
     // exiftool reads the same position back from the daemon's JPEGs.
-    if exiftool_present() {
+    if tools::exiftool("daemon_sim's exiftool read-back") {
         let first = &m.records[0];
         let path = out.flight_dir.join(first.image.as_ref().unwrap());
         let o = std::process::Command::new("exiftool")

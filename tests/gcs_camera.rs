@@ -6,6 +6,8 @@
 //! be what alfd wrote in the flight's manifest. Skipped, with a message, only
 //! when pymavlink is missing and `CI` is unset.
 
+mod tools;
+
 use serde_json::Value;
 use std::collections::HashMap;
 use std::io::{BufRead, BufReader, Read};
@@ -23,14 +25,6 @@ const MIN_IMAGES: usize = 3;
 const MAV_CMD_REQUEST_MESSAGE: u64 = 512;
 const MAV_RESULT_ACCEPTED: u64 = 0;
 const CAMERA_COMPONENT: u64 = 100;
-
-fn pymavlink_available() -> bool {
-    Command::new("python3")
-        .args(["-c", "import pymavlink"])
-        .stderr(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success())
-}
 
 /// A child that is killed if the test leaves early (a failed assertion, a
 /// timeout), so no process outlives it.
@@ -114,11 +108,7 @@ fn s<'a>(v: &'a Value, field: &str) -> &'a str {
 
 #[test]
 fn a_ground_station_sees_the_captures_as_they_happen() {
-    if !pymavlink_available() {
-        if std::env::var_os("CI").is_some() {
-            panic!("CI is set but python3 cannot import pymavlink: run scripts/setup.sh");
-        }
-        eprintln!("SKIPPED gcs_camera: python3 cannot import pymavlink (pip install pymavlink, or run scripts/setup.sh)");
+    if !tools::pymavlink("gcs_camera") {
         return;
     }
     let started = Instant::now();

@@ -2,26 +2,16 @@
 //! picked, must show up as a camera component (HEARTBEAT with MAV_TYPE_CAMERA from component
 //! 100). Skipped, with a message, only when pymavlink is missing and `CI` is unset.
 
+mod tools;
+
 use alfd::link::{self, LinkConfig};
 use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-fn pymavlink_available() -> bool {
-    Command::new("python3")
-        .args(["-c", "import pymavlink"])
-        .stderr(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success())
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_ground_station_sees_a_camera_component() {
-    if !pymavlink_available() {
-        if std::env::var_os("CI").is_some() {
-            panic!("CI is set but python3 cannot import pymavlink: run scripts/setup.sh");
-        }
-        eprintln!("SKIPPED interop_pymavlink: python3 cannot import pymavlink (pip install pymavlink, or run scripts/setup.sh)");
+    if !tools::pymavlink("interop_pymavlink") {
         return;
     }
     let script = concat!(
