@@ -2,11 +2,16 @@
 //! them: mavlink's `AsyncMavlinkReader` accepting MAVLink 1 and 2 (the link's
 //! `set_allow_recv_any_version(true)`), in reads of fuzzer-chosen sizes, some of which time out
 //! and are cancelled (the link wraps every read in `timeout`). Each message then goes where the
-//! link sends a received message that leaves the private tracker: the tap (re-encoded as a
+//! link sends a received message: its state machine (`link::Tracker`: TIMESYNC, the reboot
+//! check, the glitch gate, the pose buffer, the vehicle state), the tap (re-encoded as a
 //! MAVLink 2 frame for `telemetry.tlog`) and, for COMMAND_LONG, the camera protocol, whose
 //! replies must all pass the send allow-list.
 //!
-//! Input: byte 0 seeds the read sizes; the rest is the stream.
+//! Input: byte 0 seeds the read sizes; the rest is the stream. When byte 0's top bit is set,
+//! the harness first rewrites the checksum of every frame it can find in the stream (the
+//! dialect's CRC_EXTRA included), as a sender would: the fuzzer then reaches every message's
+//! parser and the link's handling of it without having to forge a 16-bit CRC per message
+//! id. With the bit clear the bytes go in as they are (line noise, forged CRCs).
 #![no_main]
 
 use std::future::Future;
@@ -16,6 +21,7 @@ use std::task::{Context, Poll, Waker};
 use alfd::capture::tlog;
 use alfd::core::allowlist;
 use alfd::daemon::camera::{CameraInfo, CameraProtocol};
+use alfd::link::{LinkConfig, Reaction, Tracker};
 use libfuzzer_sys::fuzz_target;
 
 alfd_fuzz::cap_allocations!();
@@ -56,6 +62,111 @@ impl AsyncRead for Trickle<'_> {
         buf.put_slice(head);
         self.data = tail;
         Poll::Ready(Ok(()))
+    }
+}
+
+/// CRC-16/MCRF4XX, MAVLink's X.25 checksum.
+fn crc_accumulate(crc: u16, bytes: &[u8]) -> u16 {
+    bytes.iter().fold(crc, |crc, &b| {
+        let mut t = b ^ (crc & 0xff) as u8;
+        t ^= t << 4;
+        (crc >> 8) ^ (u16::from(t) << 8) ^ (u16::from(t) << 3) ^ (u16::from(t) >> 4)
+    })
+}
+
+/// Rewrites the checksum of each frame found in `stream` (scanning on from the end of each
+/// one, or from the next byte when a start marker has no room for its frame).
+fn repair_checksums(stream: &mut [u8]) {
+    let mut i = 0;
+    while i < stream.len() {
+        // (header bytes after STX, message id); a 32-bit system id (incompat 0x02) moves the
+        // component and message ids 3 bytes on.
+        let (header, id) = match stream[i] {
+            mavlink::MAV_STX if i + 6 <= stream.len() => (5, u32::from(stream[i + 5])),
+            mavlink::MAV_STX_V2 if i + 3 <= stream.len() => {
+                let at = i + if stream[i + 2] & 0x02 != 0 { 10 } else { 7 };
+                let Some(id) = stream.get(at..at + 3) else {
+                    i += 1;
+                    continue;
+                };
+                (at - i + 2, u32::from_le_bytes([id[0], id[1], id[2], 0]))
+            }
+            _ => {
+                i += 1;
+                continue;
+            }
+        };
+        let len = usize::from(stream[i + 1]);
+        let end = i + 1 + header + len;
+        if end + 2 > stream.len() {
+            i += 1;
+            continue;
+        }
+        let crc = crc_accumulate(0xffff, &stream[i + 1..end]);
+        let crc = crc_accumulate(crc, &[MavMessage::extra_crc(id)]);
+        stream[end..end + 2].copy_from_slice(&crc.to_le_bytes());
+        let signed = stream[i] == mavlink::MAV_STX_V2 && stream[i + 2] & 0x01 != 0;
+        i = end + 2 + if signed { 13 } else { 0 };
+    }
+}
+
+/// The link's state machine fed as the link task feeds it: every message at its receive
+/// instant, a TIMESYNC request before each one (so a reply can match), and the pose and
+/// state it publishes checked for what the estimator and the capture log rely on.
+struct LinkSide {
+    tracker: Tracker,
+    rx_ns: u64,
+}
+
+impl LinkSide {
+    fn new() -> Self {
+        LinkSide {
+            tracker: Tracker::new(LinkConfig::for_address("udpin:127.0.0.1:14550")),
+            rx_ns: 5_000_000_000,
+        }
+    }
+
+    fn on_message(&mut self, h: &MavHeader, msg: &MavMessage, step_ns: u64) {
+        self.rx_ns += step_ns;
+        let request = self.tracker.timesync_request(self.rx_ns);
+        assert_eq!(
+            allowlist::may_send(request.message_id(), None),
+            Ok(()),
+            "TIMESYNC request"
+        );
+        self.rx_ns += 1_000;
+        for r in self.tracker.on_message(h, msg, self.rx_ns) {
+            if let Reaction::Reply(m) = r {
+                assert_eq!(
+                    allowlist::may_send(m.message_id(), command_of(&m)),
+                    Ok(()),
+                    "link reply {} is not on the allow-list",
+                    m.message_name()
+                );
+            }
+        }
+        for at in [self.rx_ns, self.rx_ns.saturating_sub(150_000_000)] {
+            if let Ok(p) = self.tracker.pose_at(at) {
+                assert!(
+                    p.pos_ned_m.is_finite() && p.vel_ned_mps.is_finite() && p.q.is_finite(),
+                    "non-finite pose {p:?} at {at}"
+                );
+                assert!(
+                    (p.q.length() - 1.0).abs() < 1e-6,
+                    "pose attitude not a unit quaternion: {p:?}"
+                );
+            }
+        }
+        if let Some(s) = &self.tracker.state {
+            assert!(
+                s.pos_ned_m
+                    .iter()
+                    .chain(&s.vel_ned_mps)
+                    .chain(&s.q)
+                    .all(|v| v.is_finite()),
+                "non-finite vehicle state {s:?}"
+            );
+        }
     }
 }
 
@@ -121,12 +232,21 @@ fuzz_target!(|data: &[u8]| {
     let Some((&seed, stream)) = data.split_first() else {
         return;
     };
+    let mut repaired;
+    let stream = if seed & 0x80 != 0 {
+        repaired = stream.to_vec();
+        repair_checksums(&mut repaired);
+        &repaired[..]
+    } else {
+        stream
+    };
     let mut reader = AsyncMavlinkReader::new(Trickle {
         data: stream,
         state: 0x9E37_79B9 ^ u32::from(seed),
         stalled: false,
     });
     let mut camera = CameraProtocol::new(CameraInfo::for_alfd(640, 480));
+    let mut link = LinkSide::new();
     let mut cx = Context::from_waker(Waker::noop());
     let mut messages = 0usize;
     loop {
@@ -139,6 +259,10 @@ fuzz_target!(|data: &[u8]| {
             Poll::Pending => continue,
             Poll::Ready(Ok((h, msg))) => {
                 messages += 1;
+                // 0..=40 ms between messages, from the seed: bursts and gaps alike.
+                let step_ns =
+                    u64::from(seed.wrapping_mul(37).wrapping_add(messages as u8) % 41) * 1_000_000;
+                link.on_message(&h, &msg, step_ns);
                 digest(h, &msg, &mut camera);
             }
             // A frame with a good CRC and a payload the dialect rejects: the link counts it.

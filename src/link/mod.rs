@@ -10,7 +10,7 @@ mod task;
 
 pub use clock::mono_ns;
 pub use config::{LinkConfig, LinkConfigError, RawLinkConfig};
-pub use state::PoseQueryError;
+pub use state::{PoseQueryError, Reaction, Tracker};
 pub use task::{new, Link, LinkError, TapFrame};
 
 use crate::core::geo::Geodetic;

@@ -34,6 +34,8 @@ pub enum Reaction {
     StateChanged,
 }
 
+/// The link's state machine, with time passed in: the link task owns one and feeds it every
+/// message it reads. Public so that tests and the fuzz targets drive it without a transport.
 pub struct Tracker {
     cfg: LinkConfig,
     pub sync: TimeSync,
