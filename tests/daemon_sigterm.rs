@@ -3,11 +3,57 @@
 //! exports flushed, and the process exits by itself (the time it took is
 //! printed; the 2 s budget is measured by `cargo bench --bench daemon`, not
 //! asserted here).
+//!
+//! It runs under a stand-in for systemd's notify socket, with the unit's
+//! `WatchdogSec`: READY=1 before the captures, WATCHDOG=1 from the main loop
+//! never further apart than the watchdog timeout (systemd would kill it
+//! then), STOPPING=1 at the stop.
 
 use alfd::capture::{read_manifest, tlog};
 use std::io::{BufRead, BufReader};
+use std::os::unix::net::UnixDatagram;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
+
+/// `WatchdogSec=5` in systemd/alfd.service, as systemd passes it.
+const WATCHDOG_USEC: u64 = 5_000_000;
+
+/// READY=1 first and before SIGTERM, then WATCHDOG=1 never more than the
+/// timeout apart (nor the last one before STOPPING=1), STOPPING=1 after
+/// SIGTERM and before the exit.
+fn check_notifications(notes: &[(Instant, String)], term: Instant, exited: Instant) {
+    let texts: Vec<&str> = notes.iter().map(|(_, t)| t.as_str()).collect();
+    assert_eq!(texts.first(), Some(&"READY=1"), "notifications: {texts:?}");
+    assert!(notes[0].0 < term, "READY=1 only after SIGTERM");
+    let stopping = notes
+        .iter()
+        .position(|(_, t)| t == "STOPPING=1")
+        .unwrap_or_else(|| panic!("no STOPPING=1 in {texts:?}"));
+    assert!(notes[stopping].0 >= term && notes[stopping].0 <= exited);
+    let pets: Vec<Instant> = notes[..stopping]
+        .iter()
+        .filter(|(_, t)| t == "WATCHDOG=1")
+        .map(|(at, _)| *at)
+        .collect();
+    assert!(!pets.is_empty(), "never fed the watchdog: {texts:?}");
+    let timeout = Duration::from_micros(WATCHDOG_USEC);
+    let mut last = notes[0].0;
+    let mut longest = Duration::ZERO;
+    for at in pets.iter().copied().chain([notes[stopping].0]) {
+        longest = longest.max(at - last);
+        last = at;
+    }
+    eprintln!(
+        "FIGURE {} WATCHDOG=1 before the stop, longest gap {:.0} ms (timeout {} ms)",
+        pets.len(),
+        longest.as_secs_f64() * 1e3,
+        timeout.as_millis()
+    );
+    assert!(
+        longest < timeout,
+        "the watchdog went {longest:?} unfed: systemd would have killed alfd"
+    );
+}
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn sigterm_flushes_the_manifest_and_exports_and_exits() {
@@ -55,9 +101,35 @@ dir = {captures:?}
         ),
     )
     .unwrap();
+    // systemd's side of sd_notify: one datagram per state change, stamped on arrival.
+    let notify_path = dir.path().join("notify.sock");
+    let notify_sock = UnixDatagram::bind(&notify_path).unwrap();
+    notify_sock
+        .set_read_timeout(Some(Duration::from_millis(200)))
+        .unwrap();
+    let notify_stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let notify_log = {
+        let stop = notify_stop.clone();
+        std::thread::spawn(move || {
+            let mut got = Vec::new();
+            let mut buf = [0u8; 4096];
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                if let Ok(n) = notify_sock.recv(&mut buf) {
+                    got.push((
+                        Instant::now(),
+                        String::from_utf8_lossy(&buf[..n]).into_owned(),
+                    ));
+                }
+            }
+            got
+        })
+    };
     let mut child = Command::new(env!("CARGO_BIN_EXE_alfd"))
         .args(["run", "--log-format", "json", "--config"])
         .arg(&config)
+        .env("NOTIFY_SOCKET", &notify_path)
+        .env("WATCHDOG_USEC", WATCHDOG_USEC.to_string())
+        .env_remove("WATCHDOG_PID")
         .stdin(Stdio::null())
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
@@ -99,6 +171,10 @@ dir = {captures:?}
         term.elapsed().as_secs_f64() * 1e3
     );
     assert!(status.success(), "exit status {status}");
+    let exited = Instant::now();
+    notify_stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    let notes = notify_log.join().unwrap();
+    check_notifications(&notes, term, exited);
     let lines = log.join().unwrap();
     // --log-format json: one JSON object per line, levels named.
     for l in &lines {
