@@ -218,13 +218,16 @@ pub fn pitch_candidates_rad(
             "needs [min, max, step] with min <= max and step > 0",
         ));
     }
-    let n = ((max_deg - min_deg) / step_deg + 1e-9).floor() as usize + 1;
-    if n > 1000 {
+    // Counted in f64 before any cast: a tiny step would otherwise saturate the
+    // cast and overflow the `+ 1` (found by the config_file fuzz target).
+    let n = ((max_deg - min_deg) / step_deg + 1e-9).floor() + 1.0;
+    if n > 1000.0 {
         return Err(bad(
             field,
-            format!("{n} candidates is too many (at most 1000)"),
+            format!("{n:.0} candidates is too many (at most 1000): make the step larger"),
         ));
     }
+    let n = n as usize;
     Ok((0..n)
         .map(|k| (min_deg + k as f64 * step_deg).to_radians())
         .collect())
@@ -731,6 +734,22 @@ impl Config {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn pitch_candidate_counts_that_overflow_are_an_error() {
+        for (lo, hi, step) in [
+            (-45.0, 6.7e30, 45.0),
+            (0.0, 1.0, 1e-300),
+            (-1e308, 1e308, 1.0),
+        ] {
+            let e = pitch_candidates_rad(lo, hi, step).unwrap_err();
+            assert_eq!(e.field, "score.pitch_candidates_deg");
+            assert!(e.message.contains("too many"), "{e:?}");
+        }
+        assert_eq!(pitch_candidates_rad(-45.0, 45.0, 5.0).unwrap().len(), 19);
+        assert_eq!(pitch_candidates_rad(0.0, 999.0, 1.0).unwrap().len(), 1000);
+        assert!(pitch_candidates_rad(0.0, 1000.0, 1.0).is_err());
+    }
 
     #[test]
     fn empty_config_is_the_defaults() {

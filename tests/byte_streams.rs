@@ -964,6 +964,21 @@ fn yuyv_sizes_that_overflow_are_an_error() {
     assert!(yuyv_to_rgb(w, h, &[0x11; 96]).is_err());
 }
 
+/// `[score] pitch_candidates_deg = [min, max, step]` whose count does not fit a `usize`: the
+/// count was cast before it was checked, so the `+ 1` overflowed (a panic with overflow checks;
+/// without them, zero candidates and no error). Found by `config_file` (crash-4840aa90…).
+#[test]
+fn config_with_an_overflowing_pitch_candidate_count_is_an_error() {
+    let text = include_str!("data/fuzz/config-pitch-candidates-overflow.toml");
+    let e = Config::from_text(text, "crash.toml")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("score.pitch_candidates_deg") && e.contains("too many"),
+        "{e}"
+    );
+}
+
 /// Runs `body` in a child copy of this test binary: a failed allocation aborts the process,
 /// which would take every other test down with it.
 fn in_child(name: &str, body: impl FnOnce()) {
