@@ -11,7 +11,12 @@
 //! the harness first rewrites the checksum of every frame it can find in the stream (the
 //! dialect's CRC_EXTRA included), as a sender would: the fuzzer then reaches every message's
 //! parser and the link's handling of it without having to forge a 16-bit CRC per message
-//! id. With the bit clear the bytes go in as they are (line noise, forged CRCs).
+//! id. With the bit clear the bytes go in as they are (line noise, forged CRCs). When bit 6
+//! is set, the link side sees an autopilot with a consistent clock: a TIMESYNC reply answers
+//! the harness's newest request (`ts1`) with the request time plus an offset the fuzzer
+//! chose (its `tc1`), and the boot times of positions, attitudes and SYSTEM_TIME are that
+//! clock's "now" give or take 128 ms (from their low bits), so time sync and the pose
+//! queries are reached; with it clear every time field is taken as it came.
 #![no_main]
 
 use std::future::Future;
@@ -116,25 +121,68 @@ fn repair_checksums(stream: &mut [u8]) {
 struct LinkSide {
     tracker: Tracker,
     rx_ns: u64,
+    /// Bit 6 of byte 0: the autopilot's clock made consistent (see the module doc).
+    consistent_clock: bool,
+    /// The autopilot's clock minus ours, as the last TIMESYNC reply set it.
+    offset_ns: i64,
 }
 
 impl LinkSide {
-    fn new() -> Self {
+    fn new(consistent_clock: bool) -> Self {
         LinkSide {
             tracker: Tracker::new(LinkConfig::for_address("udpin:127.0.0.1:14550")),
             rx_ns: 5_000_000_000,
+            consistent_clock,
+            offset_ns: 0,
         }
+    }
+
+    fn remote_ns(&self, local_ns: u64) -> u64 {
+        (local_ns as i64).saturating_add(self.offset_ns).max(1) as u64
+    }
+
+    /// The autopilot's "now" in ms, moved by -128..=127 ms from the fuzzed value's low byte.
+    fn boot_ms(&self, fuzzed: u32) -> u32 {
+        let now_ms = (self.remote_ns(self.rx_ns) / 1_000_000) as i64;
+        (now_ms + i64::from(fuzzed as u8) - 128).clamp(0, i64::from(u32::MAX)) as u32
+    }
+
+    /// `msg` as an autopilot whose clock is consistent with ours would have sent it.
+    fn as_autopilot(&mut self, msg: &MavMessage, request_ns: u64) -> MavMessage {
+        let mut m = msg.clone();
+        match &mut m {
+            MavMessage::TIMESYNC(t) if t.tc1 != 0 => {
+                // tc1 read as the clock offset, within ±2^41 ns (about ±37 min).
+                self.offset_ns = (t.tc1 as u64 % (1 << 42)) as i64 - (1 << 41);
+                t.ts1 = request_ns as i64;
+                t.tc1 = self.remote_ns(request_ns + 500) as i64;
+            }
+            MavMessage::GLOBAL_POSITION_INT(p) => p.time_boot_ms = self.boot_ms(p.time_boot_ms),
+            MavMessage::ATTITUDE(a) => a.time_boot_ms = self.boot_ms(a.time_boot_ms),
+            MavMessage::ATTITUDE_QUATERNION(a) => a.time_boot_ms = self.boot_ms(a.time_boot_ms),
+            MavMessage::SYSTEM_TIME(t) => t.time_boot_ms = self.boot_ms(t.time_boot_ms),
+            _ => {}
+        }
+        m
     }
 
     fn on_message(&mut self, h: &MavHeader, msg: &MavMessage, step_ns: u64) {
         self.rx_ns += step_ns;
-        let request = self.tracker.timesync_request(self.rx_ns);
+        let request_ns = self.rx_ns;
+        let request = self.tracker.timesync_request(request_ns);
         assert_eq!(
             allowlist::may_send(request.message_id(), None),
             Ok(()),
             "TIMESYNC request"
         );
         self.rx_ns += 1_000;
+        let adjusted;
+        let msg = if self.consistent_clock {
+            adjusted = self.as_autopilot(msg, request_ns);
+            &adjusted
+        } else {
+            msg
+        };
         for r in self.tracker.on_message(h, msg, self.rx_ns) {
             if let Reaction::Reply(m) = r {
                 assert_eq!(
@@ -246,7 +294,7 @@ fuzz_target!(|data: &[u8]| {
         stalled: false,
     });
     let mut camera = CameraProtocol::new(CameraInfo::for_alfd(640, 480));
-    let mut link = LinkSide::new();
+    let mut link = LinkSide::new(seed & 0x40 != 0);
     let mut cx = Context::from_waker(Waker::noop());
     let mut messages = 0usize;
     loop {
