@@ -225,7 +225,7 @@ fn command_of(msg: &MavMessage) -> Option<u32> {
     }
 }
 
-/// What the link does with one received message, minus the private tracker.
+/// What the link does with one received message besides its state machine (`LinkSide`).
 fn digest(h: MavHeader, msg: &MavMessage, camera: &mut CameraProtocol) {
     // The tap: the link re-encodes every received message as a MAVLink 2 frame and the
     // capture writer appends it to telemetry.tlog, which refuses (and then stops logging)
