@@ -25,10 +25,13 @@ if ((${#need[@]})); then
 fi
 
 # pymavlink: the ground-station side of tests/interop_pymavlink.rs (which CI must run).
-if ! python3 -c "import pymavlink" 2>/dev/null; then
-    python3 -m pip install --quiet pymavlink 2>/dev/null \
-        || python3 -m pip install --quiet --break-system-packages pymavlink
-fi
+# pycolmap (CPU wheels from PyPI): scripts/colmap_judge.py, run by tests/colmap_judge.rs.
+for module in pymavlink pycolmap; do
+    if ! python3 -c "import $module" 2>/dev/null; then
+        python3 -m pip install --quiet "$module" 2>/dev/null \
+            || python3 -m pip install --quiet --break-system-packages "$module"
+    fi
+done
 
 cargo fetch --locked
 echo "setup: ok"

@@ -1,6 +1,6 @@
-//! External programs some tests talk to (pymavlink's Python, exiftool): present, or the test
-//! is skipped with a message saying what to install; in CI (`CI` set) a missing one fails the
-//! test instead, so CI never passes by skipping.
+//! External programs some tests talk to (Python with pymavlink or pycolmap, exiftool): present,
+//! or the test is skipped with a message saying what to install; in CI (`CI` set) a missing one
+//! fails the test instead, so CI never passes by skipping.
 #![allow(dead_code)]
 
 use std::process::{Command, Stdio};
@@ -27,6 +27,21 @@ pub fn pymavlink(test: &str) -> bool {
         test,
         "python3 with pymavlink",
         "pip install pymavlink, or run scripts/setup.sh",
+    )
+}
+
+/// Whether `python3` can import pycolmap (see the module doc for what happens if not).
+pub fn pycolmap(test: &str) -> bool {
+    let present = Command::new("python3")
+        .args(["-c", "import pycolmap"])
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    required(
+        present,
+        test,
+        "python3 with pycolmap",
+        "pip install pycolmap, or run scripts/setup.sh",
     )
 }
 
