@@ -46,6 +46,32 @@ pub fn gaussian_window() -> [f64; SSIM_WINDOW] {
 /// Mean SSIM of `a` against `b` (`width`×`height`, row-major), dynamic range
 /// `peak`; `None` for images smaller than the window.
 pub fn ssim(a: &[f32], b: &[f32], width: usize, height: usize, peak: f64) -> Option<f64> {
+    let map = ssim_map(a, b, width, height, peak)?;
+    Some(map.values.iter().sum::<f64>() / map.values.len() as f64)
+}
+
+/// SSIM of every window fully inside the image, row-major; the window at
+/// `(row, col)` of the map is centred on pixel `(row + 5, col + 5)`.
+#[derive(Debug, Clone)]
+pub struct SsimMap {
+    pub values: Vec<f64>,
+    pub width: usize,
+    pub height: usize,
+}
+
+impl SsimMap {
+    /// The SSIM of the window centred on image pixel `(row, col)`, if any.
+    #[inline]
+    pub fn at_pixel(&self, row: usize, col: usize) -> Option<f64> {
+        let h = SSIM_WINDOW / 2;
+        let (r, c) = (row.checked_sub(h)?, col.checked_sub(h)?);
+        (r < self.height && c < self.width).then(|| self.values[r * self.width + c])
+    }
+}
+
+/// The per-window SSIM of `a` against `b` ([`ssim`] is its mean); `None` for
+/// images smaller than the window.
+pub fn ssim_map(a: &[f32], b: &[f32], width: usize, height: usize, peak: f64) -> Option<SsimMap> {
     assert_eq!(a.len(), width * height);
     assert_eq!(b.len(), width * height);
     if width < SSIM_WINDOW || height < SSIM_WINDOW {
@@ -75,7 +101,7 @@ pub fn ssim(a: &[f32], b: &[f32], width: usize, height: usize, peak: f64) -> Opt
             hz[r * ow + c] = m;
         }
     }
-    let mut total = 0.0;
+    let mut values = Vec::with_capacity(ow * oh);
     for r in 0..oh {
         for c in 0..ow {
             let mut m = [0f64; 5];
@@ -85,10 +111,14 @@ pub fn ssim(a: &[f32], b: &[f32], width: usize, height: usize, peak: f64) -> Opt
                     m[j] += gk * h[j];
                 }
             }
-            total += ssim_of_moments(m, c1, c2);
+            values.push(ssim_of_moments(m, c1, c2));
         }
     }
-    Some(total / (ow * oh) as f64)
+    Some(SsimMap {
+        values,
+        width: ow,
+        height: oh,
+    })
 }
 
 /// SSIM of one window from its weighted moments `[μx, μy, E x², E y², E xy]`.

@@ -5,7 +5,7 @@
 //! forward-warped by their own depth, disocclusion holes filled from the other.
 
 /// Where sky is put when a renderer needs a finite depth, metres.
-const SKY_M: f64 = 1e5;
+pub(crate) const SKY_M: f64 = 1e5;
 
 /// A dense view: luminance in `[0, 1]` and depth along the optical axis.
 #[derive(Debug, Clone)]
@@ -28,7 +28,7 @@ pub struct Geometry {
 
 impl Geometry {
     #[inline]
-    fn norm(&self, i: usize, r: usize) -> (f64, f64) {
+    pub(crate) fn norm(&self, i: usize, r: usize) -> (f64, f64) {
         (
             (i as f64 + 0.5 - self.cx_px) / self.focal_px,
             (r as f64 + 0.5 - self.cy_px) / self.focal_px,
@@ -39,7 +39,7 @@ impl Geometry {
     /// displaced by `-delta_m` along x, of the point at depth `t` on the ray
     /// through normalised `(x, y)` of a camera at 0.
     #[inline]
-    fn reproject(&self, x: f64, y: f64, t: f64, delta_m: f64) -> Option<(f64, f64, f64)> {
+    pub(crate) fn reproject(&self, x: f64, y: f64, t: f64, delta_m: f64) -> Option<(f64, f64, f64)> {
         let (s, c) = self.pitch_rad.sin_cos();
         let depth = t + delta_m * s;
         if depth <= 1e-6 {
@@ -55,7 +55,7 @@ impl Geometry {
     }
 
     #[inline]
-    fn inside(&self, col: f64, row: f64) -> bool {
+    pub(crate) fn inside(&self, col: f64, row: f64) -> bool {
         col >= -0.5
             && row >= -0.5
             && col <= self.width as f64 - 0.5

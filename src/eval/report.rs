@@ -47,8 +47,16 @@ pub fn results_json(results: &[SceneResult]) -> Value {
             }
             scene.insert(model.as_str().to_string(), Value::Object(method));
         }
+        if let Value::Object(extra) = super::tables::scene_json(r) {
+            scene.extend(extra);
+        }
         top.insert(r.name.clone(), Value::Object(scene));
     }
+    top.insert("segments".into(), super::tables::segments_json(results));
+    top.insert(
+        "targets".into(),
+        super::tables::targets_json(&super::truth::DEFAULT_TARGETS),
+    );
     Value::Object(top)
 }
 
@@ -128,6 +136,8 @@ pub fn markdown(
         "\nTotal run time: {total_s:.1} s on {} threads.\n",
         rayon::current_num_threads()
     );
+
+    s.push_str(&super::tables::markdown(results));
 
     for (si, st) in SETTING_TITLES.iter().enumerate() {
         let _ = writeln!(s, "## Setting: {st}\n");
@@ -235,15 +245,15 @@ pub fn markdown(
     for r in results {
         for seg in &r.segments {
             let _ = write!(s, "- {} {:.1} – {:.1} m:", r.name, seg.x0_m, seg.x1_m);
-            for (b, p) in &seg.sweep {
-                let _ = write!(s, " {b:.2}: {:.2} / {:.2};", p[0], p[1]);
+            for p in &seg.sweep {
+                let _ = write!(s, " {:.2}: {:.2} / {:.2};", p.spacing_m, p.psnr_db[0], p.psnr_db[1]);
             }
             s.push('\n');
         }
     }
 
-    let _ = writeln!(s, "\n## Data volume against fixed-distance triggering\n");
-    let _ = writeln!(s, "Worst-case PSNR: the lowest segment mean, renderer (a), each method at its own spacing. Fixed at equal worst case: the largest uniform spacing of the sweeps whose worst segment still reaches that PSNR, and the captures fixed-distance triggering needs at it over the line. Safe spacing: the smallest empirical spacing (a, 0.5 dB) over the segments, the fixed method of the tables.\n");
+    let _ = writeln!(s, "\n## Data volume against fixed-distance triggering (by PSNR)\n");
+    let _ = writeln!(s, "Worst-case PSNR: the lowest segment mean, renderer (a), each method at its own spacing. Fixed at equal worst case: the largest uniform spacing of the sweeps whose worst segment still reaches that PSNR, and the captures fixed-distance triggering needs at it over the line. Safe spacing: the worst segment's target spacing by the truth, the fixed method of the tables.\n");
     let _ = writeln!(s, "| scene | safe spacing (m) | captures at it | method | captures | worst-case PSNR (dB) | fixed spacing at equal worst case (m) | fixed captures | method / fixed |");
     let _ = writeln!(s, "|---|---:|---:|---|---:|---:|---:|---:|---:|");
     for r in results {

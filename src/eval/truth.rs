@@ -1,0 +1,366 @@
+//! The truth a spacing is judged by (DESIGN §3): for an in-between view and its
+//! two neighbouring captures, which of the view's surface pixels each capture
+//! sees, the true parallax span between the captures, and for a surface point
+//! the interval of camera positions along the line from which it is visible
+//! (so the captures that see it can be counted for any capture plan).
+//!
+//! Visibility is read from the true depth maps where they are unambiguous (the
+//! four capture pixels around the reprojected point all agree with its depth,
+//! or all four hold something in front of it) and settled by an exact
+//! segment-against-scene test everywhere else, so the classification does not
+//! depend on the pixel grid at occlusion edges (`tests/eval_truth.rs` checks it
+//! against a closed form and against the exact test on every pixel).
+
+use super::recon::{Geometry, View, SKY_M};
+use crate::render::{ray_box, ray_ellipsoid};
+use crate::scene::Scene;
+
+/// The quality targets a spacing must meet (DESIGN §1, the `lightfield`
+/// profile's defaults).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Targets {
+    /// Disparity range per capture step, pixels (Chai's bound with Δv = 1).
+    pub parallax_px: f64,
+    /// Fraction of an in-between view's surface pixels neither neighbour sees.
+    pub unseen_fraction_max: f64,
+    /// Captures that must see every visible surface point.
+    pub views_per_point_min: u32,
+}
+
+pub const DEFAULT_TARGETS: Targets = Targets {
+    parallax_px: 2.0,
+    unseen_fraction_max: 0.002,
+    views_per_point_min: 2,
+};
+
+/// Pixel classes of an in-between view (indices into [`Classification::counts`]).
+pub const BOTH: u8 = 0;
+pub const ONE: u8 = 1;
+pub const NEITHER: u8 = 2;
+/// A surface pixel outside both captures' frusta.
+pub const OUT_OF_BOTH: u8 = 3;
+/// No surface (sky): not part of any fraction.
+pub const SKY: u8 = 4;
+pub const CLASS_NAMES: [&str; 3] = ["both", "one", "neither"];
+
+/// Robust range of the disparities, the percentiles of the estimator's
+/// inverse-depth range (so truth and prediction measure the same quantity).
+pub const PARALLAX_PERCENTILES: (f64, f64) = (0.005, 0.995);
+
+/// Depth agreement of a reprojected point with a capture's depth: the rule of
+/// the warping renderer (2 % + 5 cm).
+#[inline]
+fn tolerance_m(depth_m: f64) -> f64 {
+    0.02 * depth_m + 0.05
+}
+
+/// Which captures see each pixel of an in-between view, and the parallax
+/// between the captures.
+#[derive(Debug, Clone)]
+pub struct Classification {
+    /// Per pixel, one of [`BOTH`], [`ONE`], [`NEITHER`], [`OUT_OF_BOTH`], [`SKY`].
+    pub class: Vec<u8>,
+    pub counts: [usize; 5],
+    /// Disparity range between the two captures over the pixels both see,
+    /// robust ([`PARALLAX_PERCENTILES`]), pixels; `None` if none is seen by both.
+    pub parallax_span_px: Option<f64>,
+    /// The same, minimum to maximum.
+    pub parallax_range_px: Option<f64>,
+    /// Pixel tests the depth maps could not decide, settled exactly.
+    pub exact_tests: usize,
+}
+
+impl Classification {
+    /// Surface pixels inside at least one capture's frustum.
+    pub fn in_frustum(&self) -> usize {
+        self.counts[BOTH as usize] + self.counts[ONE as usize] + self.counts[NEITHER as usize]
+    }
+
+    /// Fraction of the in-frustum surface pixels that neither capture sees.
+    pub fn unseen_fraction(&self) -> f64 {
+        let n = self.in_frustum();
+        if n == 0 {
+            0.0
+        } else {
+            self.counts[NEITHER as usize] as f64 / n as f64
+        }
+    }
+
+    /// Fraction of the surface pixels outside both frusta.
+    pub fn out_of_both_fraction(&self) -> f64 {
+        let n = self.in_frustum() + self.counts[OUT_OF_BOTH as usize];
+        if n == 0 {
+            0.0
+        } else {
+            self.counts[OUT_OF_BOTH as usize] as f64 / n as f64
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Seen {
+    Yes,
+    No,
+    Unsure,
+}
+
+/// The scene and the survey's camera geometry: everything the truth needs.
+#[derive(Debug, Clone, Copy)]
+pub struct Truth<'a> {
+    pub scene: &'a Scene,
+    pub g: Geometry,
+    /// Lateral offset and height of the survey line.
+    pub y_m: f64,
+    pub z_m: f64,
+}
+
+impl<'a> Truth<'a> {
+    pub fn new(scene: &'a Scene, g: Geometry) -> Truth<'a> {
+        Truth {
+            scene,
+            g,
+            y_m: scene.survey.y_m,
+            z_m: scene.survey.altitude_m,
+        }
+    }
+
+    /// `(optical axis, along-track image axis, across-track image axis)`, as
+    /// the renderer's camera.
+    #[inline]
+    fn basis(&self) -> ([f64; 3], [f64; 3], [f64; 3]) {
+        let (s, c) = self.g.pitch_rad.sin_cos();
+        ([s, 0.0, -c], [c, 0.0, s], [0.0, -1.0, 0.0])
+    }
+
+    /// The world point of pixel `(i, r)` of a view at `x_m` with depth `d`.
+    #[inline]
+    pub fn point(&self, x_m: f64, i: usize, r: usize, depth_m: f64) -> [f64; 3] {
+        let (x, y) = self.g.norm(i, r);
+        let (a, u, v) = self.basis();
+        [
+            x_m + depth_m * (a[0] + x * u[0] + y * v[0]),
+            self.y_m + depth_m * (a[1] + x * u[1] + y * v[1]),
+            self.z_m + depth_m * (a[2] + x * u[2] + y * v[2]),
+        ]
+    }
+
+    /// Whether anything of the scene lies strictly between the camera at
+    /// `c` and the surface point `p` (exact, the renderer's primitives).
+    pub fn occluded(&self, c: [f64; 3], p: [f64; 3]) -> bool {
+        let d = [p[0] - c[0], p[1] - c[1], p[2] - c[2]];
+        // `p` is at parameter 1; a surface through `p` itself enters at 1 up
+        // to the rounding of a float32 depth (~1e-7).
+        const BEFORE: f64 = 1.0 - 1e-5;
+        // The ground cannot lie between a camera above it and a point on or
+        // above it.
+        self.scene
+            .boxes
+            .iter()
+            .any(|b| ray_box(b.min_m, b.max_m, c, d).is_some_and(|(t, _)| t < BEFORE))
+            || self
+                .scene
+                .ellipsoids
+                .iter()
+                .any(|e| ray_ellipsoid(e.centre_m, e.radii_m, c, d).is_some_and(|t| t < BEFORE))
+    }
+
+    /// Whether the camera at `x_m` on the line sees the surface point `p`:
+    /// inside its frustum and not occluded.
+    pub fn visible_from(&self, p: [f64; 3], x_m: f64) -> bool {
+        let c = [x_m, self.y_m, self.z_m];
+        let rel = [p[0] - c[0], p[1] - c[1], p[2] - c[2]];
+        let (a, u, v) = self.basis();
+        let depth = rel[0] * a[0] + rel[1] * a[1] + rel[2] * a[2];
+        if depth <= 1e-6 {
+            return false;
+        }
+        let f = self.g.focal_px;
+        let col = f * (rel[0] * u[0] + rel[1] * u[1] + rel[2] * u[2]) / depth + self.g.cx_px - 0.5;
+        let row = f * (rel[0] * v[0] + rel[1] * v[1] + rel[2] * v[2]) / depth + self.g.cy_px - 0.5;
+        self.g.inside(col, row) && !self.occluded(c, p)
+    }
+
+    /// Whether capture `cap` sees the point at continuous pixel `(col, row)`
+    /// of its image with depth `depth_m` (from the depth map alone).
+    #[inline]
+    fn seen_in_map(&self, cap: &View, col: f64, row: f64, depth_m: f64) -> Seen {
+        let (w, h) = (self.g.width, self.g.height);
+        let c0 = (col.floor().max(0.0) as usize).min(w - 1);
+        let r0 = (row.floor().max(0.0) as usize).min(h - 1);
+        let c1 = (c0 + 1).min(w - 1);
+        let r1 = (r0 + 1).min(h - 1);
+        let tol = tolerance_m(depth_m);
+        let (mut agree, mut front) = (0, 0);
+        for (r, c) in [(r0, c0), (r0, c1), (r1, c0), (r1, c1)] {
+            let d = cap.depth_m[r * w + c] as f64;
+            let d = if d.is_finite() && d > 0.0 { d } else { SKY_M };
+            if (d - depth_m).abs() <= tol {
+                agree += 1;
+            } else if d < depth_m - tol {
+                front += 1;
+            }
+        }
+        match (agree, front) {
+            (4, _) => Seen::Yes,
+            (_, 4) => Seen::No,
+            _ => Seen::Unsure,
+        }
+    }
+
+    /// Classifies every pixel of `view` against the captures `a` and `b`.
+    /// `exact_everywhere` settles every in-frustum pixel by the exact test
+    /// (the reference the fast path is checked against).
+    pub fn classify(
+        &self,
+        view: &View,
+        a: &View,
+        b: &View,
+        exact_everywhere: bool,
+    ) -> Classification {
+        let (w, h) = (self.g.width, self.g.height);
+        let mut class = vec![SKY; w * h];
+        let mut counts = [0usize; 5];
+        let mut disparities = Vec::with_capacity(w * h);
+        let mut exact_tests = 0;
+        for r in 0..h {
+            for i in 0..w {
+                let k = r * w + i;
+                let d = view.depth_m[k] as f64;
+                if !(d.is_finite() && d > 0.0) {
+                    counts[SKY as usize] += 1;
+                    continue;
+                }
+                let (x, y) = self.g.norm(i, r);
+                let mut inside = 0;
+                let mut seen = 0;
+                let mut at = [(0.0, 0.0); 2];
+                for (n, cap) in [a, b].into_iter().enumerate() {
+                    let Some((col, row, depth)) = self.g.reproject(x, y, d, view.x_m - cap.x_m)
+                    else {
+                        continue;
+                    };
+                    if !self.g.inside(col, row) {
+                        continue;
+                    }
+                    inside += 1;
+                    at[n] = (col, row);
+                    let s = if exact_everywhere {
+                        Seen::Unsure
+                    } else {
+                        self.seen_in_map(cap, col, row, depth)
+                    };
+                    let yes = match s {
+                        Seen::Yes => true,
+                        Seen::No => false,
+                        Seen::Unsure => {
+                            exact_tests += 1;
+                            let p = self.point(view.x_m, i, r, d);
+                            !self.occluded([cap.x_m, self.y_m, self.z_m], p)
+                        }
+                    };
+                    if yes {
+                        seen += 1;
+                    }
+                }
+                let c = match (inside, seen) {
+                    (0, _) => OUT_OF_BOTH,
+                    (_, 2) => BOTH,
+                    (_, 1) => ONE,
+                    _ => NEITHER,
+                };
+                if c == BOTH {
+                    disparities.push((at[0].0 - at[1].0).hypot(at[0].1 - at[1].1));
+                }
+                class[k] = c;
+                counts[c as usize] += 1;
+            }
+        }
+        let (span, range) = if disparities.is_empty() {
+            (None, None)
+        } else {
+            disparities.sort_by(f64::total_cmp);
+            let q = |p: f64| disparities[((disparities.len() - 1) as f64 * p).round() as usize];
+            (
+                Some(q(PARALLAX_PERCENTILES.1) - q(PARALLAX_PERCENTILES.0)),
+                Some(disparities[disparities.len() - 1] - disparities[0]),
+            )
+        };
+        Classification {
+            class,
+            counts,
+            parallax_span_px: span,
+            parallax_range_px: range,
+            exact_tests,
+        }
+    }
+
+    /// The interval `[from, to]` of camera positions along the line,
+    /// containing `x0`, from which `p` is visible: walked in `step_m` (an
+    /// occlusion shorter than that may be stepped over) up to `max_m` either
+    /// side, each end then bisected to 1/64 of the step.
+    pub fn visibility_interval(&self, p: [f64; 3], x0: f64, step_m: f64, max_m: f64) -> (f64, f64) {
+        let end = |dir: f64| {
+            let mut last = x0;
+            let mut x = x0 + dir * step_m;
+            while (x - x0).abs() <= max_m {
+                if !self.visible_from(p, x) {
+                    let (mut lo, mut hi) = (last, x);
+                    for _ in 0..6 {
+                        let mid = 0.5 * (lo + hi);
+                        if self.visible_from(p, mid) {
+                            lo = mid;
+                        } else {
+                            hi = mid;
+                        }
+                    }
+                    return lo;
+                }
+                last = x;
+                x += dir * step_m;
+            }
+            last
+        };
+        (end(-1.0), end(1.0))
+    }
+
+    /// The visibility intervals of the surface points of a view at `x_m`,
+    /// sampled every `stride` pixels (`depth_m` is the view's depth map).
+    pub fn view_intervals(
+        &self,
+        x_m: f64,
+        depth_m: &[f32],
+        stride: usize,
+        step_m: f64,
+    ) -> Vec<(f64, f64)> {
+        let (w, h) = (self.g.width, self.g.height);
+        let max_m = 8.0 * self.z_m.max(1.0);
+        let mut out = Vec::new();
+        for r in (stride / 2..h).step_by(stride.max(1)) {
+            for i in (stride / 2..w).step_by(stride.max(1)) {
+                let d = depth_m[r * w + i] as f64;
+                if d.is_finite() && d > 0.0 {
+                    let p = self.point(x_m, i, r, d);
+                    out.push(self.visibility_interval(p, x_m, step_m, max_m));
+                }
+            }
+        }
+        out
+    }
+}
+
+/// Captures (positions along the line) inside an interval.
+pub fn captures_within(caps_m: &[f64], (from, to): (f64, f64)) -> usize {
+    let lo = caps_m.partition_point(|&x| x < from);
+    let hi = caps_m.partition_point(|&x| x <= to);
+    hi.saturating_sub(lo)
+}
+
+/// The largest uniform spacing that keeps every interval in at least `k`
+/// captures whatever the grid's phase: `min length / k`.
+pub fn views_per_point_spacing(intervals: &[(f64, f64)], k: u32) -> Option<f64> {
+    intervals
+        .iter()
+        .map(|(a, b)| b - a)
+        .min_by(f64::total_cmp)
+        .map(|l| l / k.max(1) as f64)
+}

@@ -1,0 +1,170 @@
+//! The evaluation's truth (`alfd::eval::truth`) against closed forms: a street
+//! between two blocks seen from nadir, where the strip neither neighbouring
+//! capture sees, each floor point's visibility interval and the parallax span
+//! between the captures have exact values; and the depth-map fast path
+//! against the exact test on every pixel of a shipped scene.
+
+use alfd::eval::recon::{Geometry, View};
+use alfd::eval::truth::{Truth, BOTH, NEITHER, ONE};
+use alfd::render::{render_depth, survey_camera};
+use alfd::scene::Scene;
+use std::path::Path;
+
+/// Blocks 20 m tall at x ≤ 0 and x ≥ 2 (a 2 m street across the track, the
+/// whole width of every row), camera at 40 m, nadir.
+const STREET: &str = r#"
+name = "street"
+[survey]
+altitude_m = 40.0
+speed_mps = 5.0
+pitch_deg = 0.0
+hfov_deg = 69.0
+width = 200
+height = 150
+start_x_m = -4.0
+end_x_m = 6.0
+view_step_m = 0.04
+[ground]
+texture = { colour = [0.5, 0.5, 0.5] }
+[[box]]
+min_m = [-60.0, -200.0, 0.0]
+max_m = [0.0, 200.0, 20.0]
+texture = { colour = [0.5, 0.5, 0.5] }
+[[box]]
+min_m = [2.0, -200.0, 0.0]
+max_m = [62.0, 200.0, 20.0]
+texture = { colour = [0.5, 0.5, 0.5] }
+"#;
+
+fn view(scene: &Scene, x_m: f64) -> View {
+    let s = &scene.survey;
+    let cam = survey_camera(scene, x_m, s.width, s.height);
+    View {
+        x_m,
+        lum: vec![0.0; s.width * s.height],
+        depth_m: render_depth(scene, &cam),
+    }
+}
+
+fn geometry(scene: &Scene) -> Geometry {
+    let s = &scene.survey;
+    let cam = survey_camera(scene, s.start_x_m, s.width, s.height);
+    let (cx, cy) = cam.intrinsics.principal_px();
+    Geometry {
+        width: s.width,
+        height: s.height,
+        focal_px: cam.intrinsics.focal_px(),
+        cx_px: cx,
+        cy_px: cy,
+        pitch_rad: s.pitch_rad,
+    }
+}
+
+#[test]
+fn the_street_floor_between_two_captures_is_seen_by_neither_with_its_closed_form_width() {
+    let scene = Scene::parse(STREET, "street.toml").unwrap();
+    let g = geometry(&scene);
+    let truth = Truth::new(&scene, g);
+    // Mid view above the street's centre, captures 6 m apart. A floor point
+    // x_g is visible from cameras in [x_g + (0 − x_g)·r, x_g + (2 − x_g)·r],
+    // r = H/h = 2: an interval of g·r = 4 m. The capture at −2 misses every
+    // floor point with x_g < 2, the one at 4 every point with x_g > 0: the
+    // whole floor, 2 m at 40 m depth, is seen by neither: 2·f/40 px per row.
+    let (mid, a, b) = (view(&scene, 1.0), view(&scene, -2.0), view(&scene, 4.0));
+    let c = truth.classify(&mid, &a, &b, false);
+    let expected_px = 2.0 * g.focal_px / 40.0;
+    for r in 0..g.height {
+        let row = &c.class[r * g.width..(r + 1) * g.width];
+        let neither = row.iter().filter(|&&k| k == NEITHER).count();
+        assert!(
+            (neither as f64 - expected_px).abs() <= 1.0,
+            "row {r}: {neither} px seen by neither, closed form {expected_px:.2}"
+        );
+        // Each wall of the street (3.64 px wide in the mid view) is seen by
+        // exactly one capture: the one on its side of the street. (Near the
+        // image's ends roofs are in one capture's frustum only: f·3/20 px
+        // each side, so only the middle 40 columns are counted.)
+        let mid_cols = (g.cx_px as usize - 20)..(g.cx_px as usize + 20);
+        let one = row[mid_cols].iter().filter(|&&k| k == ONE).count();
+        let walls_px = 2.0 * (g.focal_px / 20.0 - g.focal_px / 40.0);
+        assert!(
+            (one as f64 - walls_px).abs() <= 2.0,
+            "row {r}: {one} px seen by one capture, walls {walls_px:.2}"
+        );
+    }
+    // Everything else in view (the roofs) is seen by both: one depth, so the
+    // disparity range between the captures is zero.
+    assert!(c.counts[BOTH as usize] > 0);
+    let span = c.parallax_span_px.unwrap();
+    assert!(span.abs() < 0.05, "roofs only, one depth: span {span}");
+    let unseen = c.unseen_fraction();
+    let expected = expected_px / g.width as f64;
+    assert!(
+        (unseen - expected).abs() <= 1.0 / g.width as f64,
+        "unseen fraction {unseen}, closed form {expected}"
+    );
+}
+
+#[test]
+fn the_parallax_span_between_captures_is_the_closed_form_disparity_range() {
+    // Captures 1 m apart on either side of x = 1: both see parts of the
+    // floor (depth 40 m) and of the roofs (20 m): disparities f·1/40 and
+    // f·1/20, so the span is f/40.
+    let scene = Scene::parse(STREET, "street.toml").unwrap();
+    let g = geometry(&scene);
+    let truth = Truth::new(&scene, g);
+    let (mid, a, b) = (view(&scene, 1.0), view(&scene, 0.5), view(&scene, 1.5));
+    let c = truth.classify(&mid, &a, &b, false);
+    let span = c.parallax_span_px.unwrap();
+    let expected = g.focal_px / 40.0;
+    assert!(
+        (span - expected).abs() < 0.05,
+        "span {span}, closed form {expected}"
+    );
+}
+
+#[test]
+fn a_floor_point_is_visible_over_the_closed_form_interval_of_camera_positions() {
+    let scene = Scene::parse(STREET, "street.toml").unwrap();
+    let truth = Truth::new(&scene, geometry(&scene));
+    for x_g in [0.2, 1.0, 1.7] {
+        // [x_g − 2·x_g, x_g + 2·(2 − x_g)] = [−x_g, 4 − x_g].
+        let (from, to) = truth.visibility_interval([x_g, 0.0, 0.0], 1.0, 0.25, 200.0);
+        assert!(
+            (from + x_g).abs() < 0.01 && (to - (4.0 - x_g)).abs() < 0.01,
+            "floor point {x_g}: visible from {from:.3} to {to:.3}, closed form {:.3} to {:.3}",
+            -x_g,
+            4.0 - x_g
+        );
+    }
+}
+
+#[test]
+fn the_depth_map_fast_path_agrees_with_the_exact_test_on_a_shipped_scene() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/building.toml");
+    let scene = Scene::load(&path).unwrap();
+    let g = geometry(&scene);
+    let truth = Truth::new(&scene, g);
+    let mut differ = 0usize;
+    let mut total = 0usize;
+    for (xm, b) in [(-12.0, 1.0), (-4.0, 2.0), (0.0, 4.0)] {
+        let (mid, a, c) = (
+            view(&scene, xm),
+            view(&scene, xm - b / 2.0),
+            view(&scene, xm + b / 2.0),
+        );
+        let fast = truth.classify(&mid, &a, &c, false);
+        let exact = truth.classify(&mid, &a, &c, true);
+        differ += fast
+            .class
+            .iter()
+            .zip(&exact.class)
+            .filter(|(x, y)| x != y)
+            .count();
+        total += fast.class.len();
+        assert!(fast.exact_tests < exact.exact_tests);
+    }
+    let frac = differ as f64 / total as f64;
+    eprintln!("fast path against exact: {differ} of {total} pixels differ ({frac:.2e})");
+    assert!(frac < 1e-3, "{differ} of {total} pixels differ");
+}
