@@ -5,7 +5,7 @@
 //! against the exact test on every pixel of a shipped scene.
 
 use alfd::eval::recon::{Geometry, View};
-use alfd::eval::truth::{Truth, BOTH, NEITHER, ONE};
+use alfd::eval::truth::{captures_within, Truth, BOTH, NEITHER, ONE};
 use alfd::render::{render_depth, survey_camera};
 use alfd::scene::Scene;
 use std::path::Path;
@@ -129,7 +129,9 @@ fn a_floor_point_is_visible_over_the_closed_form_interval_of_camera_positions() 
     let truth = Truth::new(&scene, geometry(&scene));
     for x_g in [0.2, 1.0, 1.7] {
         // [x_g − 2·x_g, x_g + 2·(2 − x_g)] = [−x_g, 4 − x_g].
-        let (from, to) = truth.visibility_interval([x_g, 0.0, 0.0], 1.0, 0.25, 200.0);
+        let iv = truth.visibility([x_g, 0.0, 0.0], 1.0, 0.25, 200.0);
+        assert_eq!(iv.len(), 1, "one run of visibility: {iv:?}");
+        let (from, to) = iv[0];
         assert!(
             (from + x_g).abs() < 0.01 && (to - (4.0 - x_g)).abs() < 0.01,
             "floor point {x_g}: visible from {from:.3} to {to:.3}, closed form {:.3} to {:.3}",
@@ -137,6 +139,51 @@ fn a_floor_point_is_visible_over_the_closed_form_interval_of_camera_positions() 
             4.0 - x_g
         );
     }
+}
+
+#[test]
+fn a_point_behind_a_tree_crown_has_two_runs_of_visibility_with_closed_form_ends() {
+    // A crown of radius 2 m at (10, 0, 20) between the camera line (40 m) and
+    // the ground point P = (20, 0, 0). The ray from P to the camera at
+    // (x, 0, 40) passes the crown's centre at distance 20·|x| / √((x − 20)² +
+    // 1600): below 2 m, hidden, iff 99x² + 40x − 2000 < 0, i.e. for x in
+    // ((−40 − √793600)/198, (−40 + √793600)/198) = (−4.701, 4.297).
+    let text = r#"
+name = "crown"
+[survey]
+altitude_m = 40.0
+speed_mps = 5.0
+hfov_deg = 120.0
+width = 200
+height = 150
+start_x_m = -10.0
+end_x_m = 10.0
+view_step_m = 0.04
+[ground]
+texture = { colour = [0.5, 0.5, 0.5] }
+[[ellipsoid]]
+centre_m = [10.0, 0.0, 20.0]
+radii_m = [2.0, 2.0, 2.0]
+texture = { colour = [0.2, 0.4, 0.2] }
+"#;
+    let scene = Scene::parse(text, "crown.toml").unwrap();
+    let truth = Truth::new(&scene, geometry(&scene));
+    let iv = truth.visibility([20.0, 0.0, 0.0], 20.0, 0.25, 200.0);
+    let root = 793_600f64.sqrt();
+    let (lo, hi) = ((-40.0 - root) / 198.0, (-40.0 + root) / 198.0);
+    assert_eq!(iv.len(), 2, "two runs of visibility: {iv:?}");
+    assert!(
+        (iv[0].1 - lo).abs() < 0.01 && (iv[1].0 - hi).abs() < 0.01,
+        "hidden from {:.3} to {:.3}, closed form {lo:.3} to {hi:.3}",
+        iv[0].1,
+        iv[1].0
+    );
+    // Each run ends where P leaves the frustum along track (120°: at
+    // x = 20 ± 40·tan 60°), and the counting follows the runs.
+    let edge = 40.0 * 60f64.to_radians().tan();
+    assert!((iv[0].0 - (20.0 - edge)).abs() < 0.01, "{iv:?}");
+    assert!((iv[1].1 - (20.0 + edge)).abs() < 0.01, "{iv:?}");
+    assert_eq!(captures_within(&[-5.0, 0.0, 4.0, 5.0], &iv), 2);
 }
 
 #[test]

@@ -19,11 +19,11 @@ use crate::scene::{Scene, SceneError};
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 use recon::{Geometry, View};
-use truth::{Classification, Targets, Truth, DEFAULT_TARGETS};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 use thiserror::Error;
+use truth::{Classification, Targets, Truth, DEFAULT_TARGETS};
 
 /// The methods compared, in table order.
 pub const METHODS: [Model; 4] = [Model::Occlusion, Model::Mmds, Model::Sspa, Model::Fixed];
@@ -330,13 +330,15 @@ pub struct SegmentTruth {
     pub target_m: Option<f64>,
     pub target_at_least: bool,
     /// Each target separately: parallax, unseen fraction (swept), views per
-    /// point (from the visibility intervals: shortest interval / k).
+    /// point (from the visibility intervals: the worst point's spacing that
+    /// keeps it in k captures whatever the phase).
     pub parallax_m: Option<f64>,
     pub parallax_at_least: bool,
     pub unseen_m: Option<f64>,
     pub unseen_at_least: bool,
     pub views_per_point_m: Option<f64>,
-    /// Visibility intervals of the sampled points: shortest and 1st percentile, m.
+    /// Total visible length along the line of the sampled points: shortest
+    /// and 1st percentile, m.
     pub interval_min_m: Option<f64>,
     pub interval_p01_m: Option<f64>,
     pub points: usize,
@@ -358,8 +360,8 @@ pub struct Segment {
     /// Every swept spacing, finest first.
     pub sweep: Vec<SweepPoint>,
     pub truth: SegmentTruth,
-    /// Visibility intervals `(from, to)` of the sampled surface points.
-    pub intervals: Vec<(f64, f64)>,
+    /// Visibility intervals `(from, to)` of each sampled surface point.
+    pub intervals: Vec<Vec<(f64, f64)>>,
     /// Largest spacing within each tolerance of [`TOLERANCES_DB`], per renderer.
     pub empirical_m: [[f64; 2]; 4],
     /// The sweep never left the tolerance (the true value is at least this).
@@ -672,7 +674,12 @@ pub struct GuaranteeRun {
 
 /// Whether every capture interval of `caps` that overlaps a segment is at
 /// most that segment's target spacing (the sweeps' rule, applied to a plan).
-fn plan_within(caps: &[usize], segs: &[(usize, usize)], target: &[Option<f64>], step_m: f64) -> bool {
+fn plan_within(
+    caps: &[usize],
+    segs: &[(usize, usize)],
+    target: &[Option<f64>],
+    step_m: f64,
+) -> bool {
     caps.windows(2).all(|w| {
         let len = (w[1] - w[0]) as f64 * step_m;
         segs.iter().zip(target).all(|(&(a, b), t)| {
@@ -697,12 +704,18 @@ fn plan_geo(truth: &Truth, views: &[View], caps: &[usize]) -> Vec<Geo> {
 /// Fewest captures of `caps_m` inside any sampled point's visibility
 /// interval; a point whose interval the line's ends cut is left out when it
 /// lacks views (the line, not the plan, is to blame).
-fn min_views(intervals: &[(f64, f64)], caps_m: &[f64], line: (f64, f64), k: u32) -> Option<usize> {
-    intervals
+fn min_views(
+    points: &[Vec<(f64, f64)>],
+    caps_m: &[f64],
+    line: (f64, f64),
+    k: u32,
+) -> Option<usize> {
+    points
         .iter()
-        .filter_map(|&iv| {
+        .filter_map(|iv| {
             let n = truth::captures_within(caps_m, iv);
-            let cut = iv.0 < line.0 || iv.1 > line.1;
+            let cut =
+                iv.first().is_some_and(|f| f.0 < line.0) || iv.last().is_some_and(|l| l.1 > line.1);
             (!(cut && n < k as usize)).then_some(n)
         })
         .min()
@@ -780,13 +793,16 @@ pub fn evaluate_scene(scene: &Scene, res: Resolution, pb: &ProgressBar) -> Scene
         let vpp_views: Vec<usize> = (0..VPP_VIEWS)
             .map(|t| a + (t * (b - a)) / (VPP_VIEWS - 1).max(1))
             .collect();
-        let intervals: Vec<(f64, f64)> = vpp_views
+        let intervals: Vec<Vec<(f64, f64)>> = vpp_views
             .par_iter()
             .flat_map_iter(|&k| {
                 truth.view_intervals(views[k].x_m, &views[k].depth_m, px_stride, VPP_STEP_M)
             })
             .collect();
-        let mut lengths: Vec<f64> = intervals.iter().map(|(f, t)| t - f).collect();
+        let mut lengths: Vec<f64> = intervals
+            .iter()
+            .map(|iv| iv.iter().map(|(f, t)| t - f).sum())
+            .collect();
         lengths.sort_by(f64::total_cmp);
         let vpp_m = truth::views_per_point_spacing(&intervals, targets.views_per_point_min);
 
@@ -880,7 +896,10 @@ pub fn evaluate_scene(scene: &Scene, res: Resolution, pb: &ProgressBar) -> Scene
                 }
             }
             let meets = [
-                point.geo.parallax_worst_px.is_none_or(|p| p <= targets.parallax_px),
+                point
+                    .geo
+                    .parallax_worst_px
+                    .is_none_or(|p| p <= targets.parallax_px),
                 point.geo.unseen_worst <= targets.unseen_fraction_max,
             ];
             for c in 0..2 {
@@ -1034,9 +1053,9 @@ pub fn evaluate_scene(scene: &Scene, res: Resolution, pb: &ProgressBar) -> Scene
     // segments it overlaps, then that plan judged by the truth.
     pb.set_message(format!("{}: data volume at the targets", scene.name));
     let seg_targets: Vec<Option<f64>> = segments.iter().map(|s| s.truth.target_m).collect();
-    let all_intervals: Vec<(f64, f64)> = segments
+    let all_intervals: Vec<Vec<(f64, f64)>> = segments
         .iter()
-        .flat_map(|s| s.intervals.iter().copied())
+        .flat_map(|s| s.intervals.iter().cloned())
         .collect();
     let line = (xs[0], xs[n - 1]);
     let guarantee = if seg_targets.iter().all(|t| t.is_some()) {

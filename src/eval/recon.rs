@@ -39,7 +39,13 @@ impl Geometry {
     /// displaced by `-delta_m` along x, of the point at depth `t` on the ray
     /// through normalised `(x, y)` of a camera at 0.
     #[inline]
-    pub(crate) fn reproject(&self, x: f64, y: f64, t: f64, delta_m: f64) -> Option<(f64, f64, f64)> {
+    pub(crate) fn reproject(
+        &self,
+        x: f64,
+        y: f64,
+        t: f64,
+        delta_m: f64,
+    ) -> Option<(f64, f64, f64)> {
         let (s, c) = self.pitch_rad.sin_cos();
         let depth = t + delta_m * s;
         if depth <= 1e-6 {

@@ -246,13 +246,20 @@ pub fn markdown(
         for seg in &r.segments {
             let _ = write!(s, "- {} {:.1} – {:.1} m:", r.name, seg.x0_m, seg.x1_m);
             for p in &seg.sweep {
-                let _ = write!(s, " {:.2}: {:.2} / {:.2};", p.spacing_m, p.psnr_db[0], p.psnr_db[1]);
+                let _ = write!(
+                    s,
+                    " {:.2}: {:.2} / {:.2};",
+                    p.spacing_m, p.psnr_db[0], p.psnr_db[1]
+                );
             }
             s.push('\n');
         }
     }
 
-    let _ = writeln!(s, "\n## Data volume against fixed-distance triggering (by PSNR)\n");
+    let _ = writeln!(
+        s,
+        "\n## Data volume against fixed-distance triggering (by PSNR)\n"
+    );
     let _ = writeln!(s, "Worst-case PSNR: the lowest segment mean, renderer (a), each method at its own spacing. Fixed at equal worst case: the largest uniform spacing of the sweeps whose worst segment still reaches that PSNR, and the captures fixed-distance triggering needs at it over the line. Safe spacing: the worst segment's target spacing by the truth, the fixed method of the tables.\n");
     let _ = writeln!(s, "| scene | safe spacing (m) | captures at it | method | captures | worst-case PSNR (dB) | fixed spacing at equal worst case (m) | fixed captures | method / fixed |");
     let _ = writeln!(s, "|---|---:|---:|---|---:|---:|---:|---:|---:|");

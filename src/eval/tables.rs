@@ -5,8 +5,8 @@
 
 use super::truth::{Targets, CLASS_NAMES, DEFAULT_TARGETS};
 use super::{
-    SceneResult, Segment, SweepPoint, CALIBRATION_FIT, METHODS, PARALLAX_LEVELS_PX,
-    RENDERERS, UNSEEN_LEVELS,
+    SceneResult, Segment, SweepPoint, CALIBRATION_FIT, METHODS, PARALLAX_LEVELS_PX, RENDERERS,
+    UNSEEN_LEVELS,
 };
 use serde_json::{json, Map, Value};
 use std::fmt::Write;
@@ -203,10 +203,16 @@ pub fn markdown(results: &[SceneResult]) -> String {
     let _ = writeln!(s, "## The truth: what each neighbouring capture sees\n");
     let _ = writeln!(s, "Default targets (DESIGN §1, `lightfield`): parallax ≤ {} px per step, unseen fraction ≤ {}, views per point ≥ {}. For every in-between view, each surface pixel is classified from the true depth as seen by both neighbouring captures, by one, by neither (out of both frusta apart); the parallax span is the disparity range between the two captures (0.5–99.5 percentiles) over the pixels both see. Views per point: each sampled surface point's interval of camera positions along the line from which it is visible (exact ray casting); a uniform spacing keeps every point in ≥ k captures whatever the phase iff it is ≤ the shortest interval / k. Held in (fit): {:?}; the others held out.\n", t.parallax_px, t.unseen_fraction_max, t.views_per_point_min, CALIBRATION_FIT);
 
-    let _ = writeln!(s, "### Empirical permissible spacing per segment, and each model's prediction\n");
+    let _ = writeln!(
+        s,
+        "### Empirical permissible spacing per segment, and each model's prediction\n"
+    );
     let _ = writeln!(s, "Empirical (m): the largest uniform spacing of the sweep (neighbours ≤ 1.25× apart) meeting each target by the truth, over every in-between view of the segment; `target` meets all three. `≥`: the sweep reached the segment's length first. Predictions: median over the segment's views of each model's permissible spacing. At the target spacing: parallax (px) predicted by the MMDS formula from live depth against the worst true span; unseen fraction predicted by the occlusion model `ρ·b` against the worst true fraction.\n");
     let _ = writeln!(s, "| scene | held | segment x (m) | target | parallax | unseen | views/pt (shortest interval) | binds | occlusion | MMDS | SSPA | parallax at target: pred / truth | unseen at target: pred / truth |");
-    let _ = writeln!(s, "|---|---|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|");
+    let _ = writeln!(
+        s,
+        "|---|---|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|"
+    );
     for r in results {
         for seg in &r.segments {
             let tr = &seg.truth;
@@ -255,7 +261,11 @@ pub fn markdown(results: &[SceneResult]) -> String {
             if v.is_empty() {
                 "–".to_string()
             } else {
-                format!("{:.3} ({})", v.iter().sum::<f64>() / v.len() as f64, v.len())
+                format!(
+                    "{:.3} ({})",
+                    v.iter().sum::<f64>() / v.len() as f64,
+                    v.len()
+                )
             }
         };
         let _ = writeln!(s, "| {} | {} | {} |", model.as_str(), acc(true), acc(false));
@@ -279,7 +289,10 @@ pub fn markdown(results: &[SceneResult]) -> String {
         }
     }
 
-    let _ = writeln!(s, "\n### What a target level costs: quality at the largest spacing meeting it\n");
+    let _ = writeln!(
+        s,
+        "\n### What a target level costs: quality at the largest spacing meeting it\n"
+    );
     let _ = writeln!(s, "Per scene: the mean over its segments of the quality (PSNR dB / SSIM of the scored in-between views) at the largest swept spacing whose worst view meets the level; spread: min – max over scenes. Renderer (a) light field through the plane at w_opt, (b) depth-aided warping.\n");
     for (title, levels, ok) in [
         (
@@ -342,7 +355,10 @@ pub fn markdown(results: &[SceneResult]) -> String {
         }
     }
 
-    let _ = writeln!(s, "\n### Quality by pixel class, each method at its own spacing\n");
+    let _ = writeln!(
+        s,
+        "\n### Quality by pixel class, each method at its own spacing\n"
+    );
     let _ = writeln!(s, "Fraction of in-frustum surface pixels in each class (both / one / neither), and PSNR (dB) of each class's pixels pooled over the scene's in-between views, renderer (a) then (b); `–` where a class is empty.\n");
     let _ = writeln!(s, "| scene | method | fraction both / one / neither | (a) both / one / neither | (b) both / one / neither | SSIM (b) both / one / neither |");
     let _ = writeln!(s, "|---|---|---:|---:|---:|---:|");
@@ -350,8 +366,14 @@ pub fn markdown(results: &[SceneResult]) -> String {
         for (m, model) in METHODS.iter().enumerate() {
             let c = &r.runs[m][0].classes;
             let tri = |v: [f64; 3], d: usize| {
-                v.map(|x| if x.is_finite() { format!("{x:.d$}") } else { "–".into() })
-                    .join(" / ")
+                v.map(|x| {
+                    if x.is_finite() {
+                        format!("{x:.d$}")
+                    } else {
+                        "–".into()
+                    }
+                })
+                .join(" / ")
             };
             let _ = writeln!(
                 s,
@@ -366,14 +388,21 @@ pub fn markdown(results: &[SceneResult]) -> String {
         }
     }
 
-    let _ = writeln!(s, "\n### Each method against the targets at its own spacing\n");
+    let _ = writeln!(
+        s,
+        "\n### Each method against the targets at its own spacing\n"
+    );
     let _ = writeln!(s, "Worst segment by the truth: worst unseen fraction and worst parallax span (px) over its in-between views.\n");
     let _ = writeln!(s, "| scene | method | captures | worst unseen | worst parallax (px) | meets parallax and unseen |");
     let _ = writeln!(s, "|---|---|---:|---:|---:|---|");
     for r in results {
         for (m, model) in METHODS.iter().enumerate() {
             let run = &r.runs[m][0];
-            let worst_u = run.segment_geo.iter().map(|g| g.unseen_worst).fold(0.0, f64::max);
+            let worst_u = run
+                .segment_geo
+                .iter()
+                .map(|g| g.unseen_worst)
+                .fold(0.0, f64::max);
             let worst_p = run
                 .segment_geo
                 .iter()
@@ -396,16 +425,25 @@ pub fn markdown(results: &[SceneResult]) -> String {
     let _ = writeln!(s, "\n### Data volume at the targets\n");
     let _ = writeln!(s, "Each method's spacing scaled by one constant (bisection) until every capture interval is within the target spacing of the segments it overlaps; that plan is then judged by the truth (worst unseen fraction and parallax over all its in-between views, fewest captures seeing a sampled point). Fixed: fixed-distance triggering at the worst segment's target spacing; oracle: each segment at its own.\n");
     let _ = writeln!(s, "| scene | fixed spacing (m) | fixed captures | oracle captures | method | scale | captures | / fixed | / oracle | worst unseen | worst parallax (px) | fewest views | meets |");
-    let _ = writeln!(s, "|---|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---|");
+    let _ = writeln!(
+        s,
+        "|---|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---|"
+    );
     for r in results {
         let g = &r.guarantee;
         if g.methods.is_empty() {
-            let _ = writeln!(s, "| {} | – | – | – | (a segment meets no swept spacing) | | | | | | | | |", r.name);
+            let _ = writeln!(
+                s,
+                "| {} | – | – | – | (a segment meets no swept spacing) | | | | | | | | |",
+                r.name
+            );
             continue;
         }
         for (run, model) in g.methods.iter().zip(METHODS) {
             let ratio = |d: Option<usize>| {
-                d.map_or("–".into(), |d| format!("{:.2}", run.captures as f64 / d as f64))
+                d.map_or("–".into(), |d| {
+                    format!("{:.2}", run.captures as f64 / d as f64)
+                })
             };
             let _ = writeln!(
                 s,
@@ -449,7 +487,10 @@ pub fn markdown(results: &[SceneResult]) -> String {
                 wm(run.segment_psnr_db.iter().map(|p| p[1]).collect(), 2),
                 wm(run.segment_ssim.iter().map(|p| p[0]).collect(), 4),
                 wm(run.segment_ssim.iter().map(|p| p[1]).collect(), 4),
-                run.segment_geo.iter().map(|g| g.unseen_worst).fold(0.0, f64::max),
+                run.segment_geo
+                    .iter()
+                    .map(|g| g.unseen_worst)
+                    .fold(0.0, f64::max),
                 f(
                     run.segment_geo
                         .iter()

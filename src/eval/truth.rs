@@ -180,6 +180,25 @@ impl<'a> Truth<'a> {
         self.g.inside(col, row) && !self.occluded(c, p)
     }
 
+    /// [`Self::visible_from`] with the frustum bounded along track only: how
+    /// long a point stays in a strip's view across track is the flight plan's
+    /// side overlap, not the spacing (with a pitched camera, points near a
+    /// lateral image edge leave it after a few metres of travel whatever the
+    /// spacing), so views per point leave it out.
+    pub fn visible_along_track(&self, p: [f64; 3], x_m: f64) -> bool {
+        let c = [x_m, self.y_m, self.z_m];
+        let rel = [p[0] - c[0], p[1] - c[1], p[2] - c[2]];
+        let (a, u, _) = self.basis();
+        let depth = rel[0] * a[0] + rel[1] * a[1] + rel[2] * a[2];
+        if depth <= 1e-6 {
+            return false;
+        }
+        let col = self.g.focal_px * (rel[0] * u[0] + rel[1] * u[1] + rel[2] * u[2]) / depth
+            + self.g.cx_px
+            - 0.5;
+        (-0.5..=self.g.width as f64 - 0.5).contains(&col) && !self.occluded(c, p)
+    }
+
     /// Whether capture `cap` sees the point at continuous pixel `(col, row)`
     /// of its image with depth `depth_m` (from the depth map alone).
     #[inline]
@@ -294,33 +313,88 @@ impl<'a> Truth<'a> {
         }
     }
 
-    /// The interval `[from, to]` of camera positions along the line,
-    /// containing `x0`, from which `p` is visible: walked in `step_m` (an
-    /// occlusion shorter than that may be stepped over) up to `max_m` either
-    /// side, each end then bisected to 1/64 of the step.
-    pub fn visibility_interval(&self, p: [f64; 3], x0: f64, step_m: f64, max_m: f64) -> (f64, f64) {
-        let end = |dir: f64| {
-            let mut last = x0;
+    /// Whether `p` projects inside the image along track from `x_m`.
+    fn in_track_frustum(&self, p: [f64; 3], x_m: f64) -> bool {
+        let rel = [p[0] - x_m, p[1] - self.y_m, p[2] - self.z_m];
+        let (a, u, _) = self.basis();
+        let depth = rel[0] * a[0] + rel[1] * a[1] + rel[2] * a[2];
+        if depth <= 1e-6 {
+            return false;
+        }
+        let col = self.g.focal_px * (rel[0] * u[0] + rel[1] * u[1] + rel[2] * u[2]) / depth
+            + self.g.cx_px
+            - 0.5;
+        (-0.5..=self.g.width as f64 - 0.5).contains(&col)
+    }
+
+    /// The camera positions along the line from which `p` is visible
+    /// ([`Self::visible_along_track`]), as sorted disjoint intervals: the
+    /// line is walked in `step_m` from `x0` both ways until `p` leaves the
+    /// frustum along track (at most `max_m`), every change between visible
+    /// and hidden bisected to 1/64 of the step. An occlusion shorter than the
+    /// step may be stepped over.
+    pub fn visibility(&self, p: [f64; 3], x0: f64, step_m: f64, max_m: f64) -> Vec<(f64, f64)> {
+        let vis = |x: f64| self.visible_along_track(p, x);
+        let edge = |inside: f64, outside: f64| {
+            let (mut lo, mut hi) = (inside, outside);
+            for _ in 0..6 {
+                let mid = 0.5 * (lo + hi);
+                if vis(mid) {
+                    lo = mid;
+                } else {
+                    hi = mid;
+                }
+            }
+            (lo, hi)
+        };
+        // Transitions walking one way: the ends of visible runs, in order.
+        let walk = |dir: f64| {
+            let mut ends = Vec::new();
+            let (mut last, mut last_vis) = (x0, vis(x0));
             let mut x = x0 + dir * step_m;
-            while (x - x0).abs() <= max_m {
-                if !self.visible_from(p, x) {
-                    let (mut lo, mut hi) = (last, x);
-                    for _ in 0..6 {
-                        let mid = 0.5 * (lo + hi);
-                        if self.visible_from(p, mid) {
-                            lo = mid;
-                        } else {
-                            hi = mid;
-                        }
-                    }
-                    return lo;
+            while (x - x0).abs() <= max_m && self.in_track_frustum(p, x) {
+                let v = vis(x);
+                if v != last_vis {
+                    let (a, b) = if last_vis {
+                        edge(last, x)
+                    } else {
+                        let (a, b) = edge(x, last);
+                        (b, a)
+                    };
+                    // The visible side of the change.
+                    ends.push(if last_vis { a } else { b });
+                    last_vis = v;
                 }
                 last = x;
                 x += dir * step_m;
             }
-            last
+            if last_vis {
+                // Out of the frustum (bisected like a change) or at `max_m`.
+                let out = (x - x0).abs() <= max_m;
+                ends.push(if out { edge(last, x).0 } else { last });
+            }
+            ends
         };
-        (end(-1.0), end(1.0))
+        // Forward: x0 is visible, so ends alternate end, start, end, ...
+        let fwd = walk(1.0);
+        let bwd = walk(-1.0);
+        let mut out = Vec::new();
+        // The run through x0.
+        let first_to = fwd.first().copied().unwrap_or(x0);
+        let first_from = bwd.first().copied().unwrap_or(x0);
+        out.push((first_from, first_to));
+        for pair in fwd[1..].chunks(2) {
+            if let [a, b] = pair {
+                out.push((*a, *b));
+            }
+        }
+        for pair in bwd[1..].chunks(2) {
+            if let [a, b] = pair {
+                out.push((*b, *a));
+            }
+        }
+        out.sort_by(|a, b| a.0.total_cmp(&b.0));
+        out
     }
 
     /// The visibility intervals of the surface points of a view at `x_m`,
@@ -331,7 +405,7 @@ impl<'a> Truth<'a> {
         depth_m: &[f32],
         stride: usize,
         step_m: f64,
-    ) -> Vec<(f64, f64)> {
+    ) -> Vec<Vec<(f64, f64)>> {
         let (w, h) = (self.g.width, self.g.height);
         let max_m = 8.0 * self.z_m.max(1.0);
         let mut out = Vec::new();
@@ -340,7 +414,7 @@ impl<'a> Truth<'a> {
                 let d = depth_m[r * w + i] as f64;
                 if d.is_finite() && d > 0.0 {
                     let p = self.point(x_m, i, r, d);
-                    out.push(self.visibility_interval(p, x_m, step_m, max_m));
+                    out.push(self.visibility(p, x_m, step_m, max_m));
                 }
             }
         }
@@ -348,19 +422,58 @@ impl<'a> Truth<'a> {
     }
 }
 
-/// Captures (positions along the line) inside an interval.
-pub fn captures_within(caps_m: &[f64], (from, to): (f64, f64)) -> usize {
-    let lo = caps_m.partition_point(|&x| x < from);
-    let hi = caps_m.partition_point(|&x| x <= to);
-    hi.saturating_sub(lo)
-}
-
-/// The largest uniform spacing that keeps every interval in at least `k`
-/// captures whatever the grid's phase: `min length / k`.
-pub fn views_per_point_spacing(intervals: &[(f64, f64)], k: u32) -> Option<f64> {
+/// Captures (sorted positions along the line) inside any of a point's
+/// visibility intervals.
+pub fn captures_within(caps_m: &[f64], intervals: &[(f64, f64)]) -> usize {
     intervals
         .iter()
-        .map(|(a, b)| b - a)
+        .map(|&(from, to)| {
+            let lo = caps_m.partition_point(|&x| x < from);
+            let hi = caps_m.partition_point(|&x| x <= to);
+            hi.saturating_sub(lo)
+        })
+        .sum()
+}
+
+/// The largest uniform spacing `s` that keeps a point in at least `k`
+/// captures whatever the grid's phase, as far as its intervals of lengths
+/// `L_i` guarantee: `Σ floor(L_i / s) ≥ k` (bisection; 0 if none).
+pub fn point_spacing(intervals: &[(f64, f64)], k: u32) -> f64 {
+    let count = |s: f64| -> u64 {
+        intervals
+            .iter()
+            .map(|(a, b)| ((b - a) / s + 1e-9).floor().max(0.0) as u64)
+            .sum()
+    };
+    let total: f64 = intervals.iter().map(|(a, b)| b - a).sum();
+    let k = k.max(1);
+    if total <= 0.0 {
+        return 0.0;
+    }
+    // At total / k the count is at most k; far below it, at least k.
+    let (mut lo, mut hi) = (total / k as f64 * 1e-6, total / k as f64 * (1.0 + 1e-9));
+    if count(hi) >= k as u64 {
+        return hi;
+    }
+    if count(lo) < k as u64 {
+        return 0.0;
+    }
+    for _ in 0..60 {
+        let mid = 0.5 * (lo + hi);
+        if count(mid) >= k as u64 {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    lo
+}
+
+/// The largest uniform spacing that keeps every sampled point in at least
+/// `k` captures ([`point_spacing`] of the worst point).
+pub fn views_per_point_spacing(points: &[Vec<(f64, f64)>], k: u32) -> Option<f64> {
+    points
+        .iter()
+        .map(|iv| point_spacing(iv, k))
         .min_by(f64::total_cmp)
-        .map(|l| l / k.max(1) as f64)
 }
