@@ -120,9 +120,11 @@ def similarity(est_c, truth_c, est_r, truth_r, np):
     close to collinear (lateral spread under COLLINEAR of their length), the roll
     is taken from the camera orientations instead: the angle about the line, through
     the centres' mean, that best aligns them, fitted robustly (a grid search on the
-    median angle, then least squares on the better half), so that images whose
-    logged attitude is wrong do not drag it. The rotation errors then measure the
-    orientations relative to each other, not their common roll.
+    lower quartile of the angles, then least squares on the images within twice
+    it, repeated), so that images whose logged attitude is wrong (a sim flight's
+    turn onto the line, issue 14) do not drag it as long as a quarter are right.
+    The rotation errors then measure the orientations relative to each other,
+    not their common roll.
     """
     s, r, t = umeyama(est_c, truth_c, np)
     centred = truth_c - truth_c.mean(0)
@@ -136,16 +138,16 @@ def similarity(est_c, truth_c, est_r, truth_r, np):
         q = axis_rotation(u, theta, np)
         return [rotation_angle_deg(tr.T @ (q @ ai), np) for tr, ai in zip(truth_r, a)]
 
-    grid = [math.radians(d) for d in np.arange(-180.0, 180.0, 1.0)]
-    theta = min(grid, key=lambda th: stats(errors(th))["median"])
-    e = errors(theta)
-    med = stats(e)["median"]
-    # Least squares about u on the better half: maximise sum trace(T_i^T Q(theta) A_i).
-    m = sum(ai @ tr.T for ai, tr, ei in zip(a, truth_r, e) if ei <= med)
     k = np.array([[0.0, -u[2], u[1]], [u[2], 0.0, -u[0]], [-u[1], u[0], 0.0]])
-    c = float(np.trace(m) - u @ m @ u)
-    d = float(np.trace(k @ m))
-    theta = math.atan2(d, c)
+    grid = [math.radians(d) for d in np.arange(-180.0, 180.0, 1.0)]
+    theta = min(grid, key=lambda th: lower_quartile(errors(th)))
+    for _ in range(4):
+        # Least squares about u on the images that agree best, i.e. maximise
+        # sum trace(T_i^T Q(theta) A_i) = trace(Q(theta) M): closed form.
+        e = errors(theta)
+        limit = 2.0 * lower_quartile(e) + 1e-3
+        m = sum(ai @ tr.T for ai, tr, ei in zip(a, truth_r, e) if ei <= limit)
+        theta = math.atan2(float(np.trace(k @ m)), float(np.trace(m) - u @ m @ u))
     q = axis_rotation(u, theta, np)
     mean = truth_c.mean(0)
     return {"scale": s, "r": q @ r, "t": q @ (t - mean) + mean, "roll_from": "orientations (centres collinear)"}
@@ -154,6 +156,11 @@ def similarity(est_c, truth_c, est_r, truth_r, np):
 def rotation_angle_deg(r, np):
     c = (np.trace(r) - 1.0) / 2.0
     return math.degrees(math.acos(max(-1.0, min(1.0, float(c)))))
+
+
+def lower_quartile(values):
+    v = sorted(values)
+    return v[(len(v) - 1) // 4]
 
 
 def stats(values):
