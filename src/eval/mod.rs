@@ -131,6 +131,10 @@ pub struct Resolution {
     pub height: usize,
     pub view_step_m: f64,
     pub supersample: usize,
+    /// In-between views scored per segment and spacing of the sweeps.
+    pub quality_views: usize,
+    /// Views per segment whose points get visibility intervals.
+    pub vpp_views: usize,
 }
 
 impl Resolution {
@@ -142,6 +146,12 @@ impl Resolution {
             height: (s.height / k).max(16),
             view_step_m: s.view_step_m * k as f64,
             supersample: 2,
+            quality_views: if quick {
+                QUALITY_VIEWS / 3
+            } else {
+                QUALITY_VIEWS
+            },
+            vpp_views: if quick { VPP_VIEWS / 2 } else { VPP_VIEWS },
         }
     }
 }
@@ -783,15 +793,15 @@ pub fn evaluate_scene(scene: &Scene, res: Resolution, pb: &ProgressBar) -> Scene
     pb.set_message(format!("{}: sweeping spacings", scene.name));
     let segs = segment_bounds(n);
     let gain = g.focal_px * s.pitch_rad.cos();
-    let px_stride = ((res.width * res.height) as f64 / VPP_POINTS as f64)
+    let px_stride = ((res.width * res.height / 2) as f64 / VPP_POINTS as f64)
         .sqrt()
         .ceil()
         .max(1.0) as usize;
     let mut segments = Vec::new();
     for &(a, b) in &segs {
         // Visibility intervals of the surface points of a few views.
-        let vpp_views: Vec<usize> = (0..VPP_VIEWS)
-            .map(|t| a + (t * (b - a)) / (VPP_VIEWS - 1).max(1))
+        let vpp_views: Vec<usize> = (0..res.vpp_views)
+            .map(|t| a + (t * (b - a)) / (res.vpp_views - 1).max(1))
             .collect();
         let intervals: Vec<Vec<(f64, f64)>> = vpp_views
             .par_iter()
@@ -847,7 +857,7 @@ pub fn evaluate_scene(scene: &Scene, res: Resolution, pb: &ProgressBar) -> Scene
                 .par_iter()
                 .map(|&(i, j, v)| Geo::of(&truth.classify(&views[v], &views[i], &views[j], false)))
                 .collect();
-            let q = QUALITY_VIEWS.min(tasks.len());
+            let q = res.quality_views.min(tasks.len());
             let picked: Vec<(usize, usize, usize)> = (0..q)
                 .map(|t| tasks[(t * (tasks.len() - 1)) / (q - 1).max(1)])
                 .collect();

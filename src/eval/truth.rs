@@ -297,12 +297,23 @@ impl<'a> Truth<'a> {
         let (span, range) = if disparities.is_empty() {
             (None, None)
         } else {
-            disparities.sort_by(f64::total_cmp);
-            let q = |p: f64| disparities[((disparities.len() - 1) as f64 * p).round() as usize];
-            (
-                Some(q(PARALLAX_PERCENTILES.1) - q(PARALLAX_PERCENTILES.0)),
-                Some(disparities[disparities.len() - 1] - disparities[0]),
-            )
+            // Order statistics by selection, O(n): this runs for every view
+            // of every sweep.
+            let n = disparities.len();
+            let (lo, hi) = (
+                ((n - 1) as f64 * PARALLAX_PERCENTILES.0).round() as usize,
+                ((n - 1) as f64 * PARALLAX_PERCENTILES.1).round() as usize,
+            );
+            let min = disparities.iter().copied().fold(f64::INFINITY, f64::min);
+            let max = disparities
+                .iter()
+                .copied()
+                .fold(f64::NEG_INFINITY, f64::max);
+            let q_hi = *disparities.select_nth_unstable_by(hi, f64::total_cmp).1;
+            let q_lo = *disparities[..=hi]
+                .select_nth_unstable_by(lo.min(hi), f64::total_cmp)
+                .1;
+            (Some(q_hi - q_lo), Some(max - min))
         };
         Classification {
             class,
@@ -398,7 +409,8 @@ impl<'a> Truth<'a> {
     }
 
     /// The visibility intervals of the surface points of a view at `x_m`,
-    /// sampled every `stride` pixels (`depth_m` is the view's depth map).
+    /// sampled every `stride` pixels in the middle half of the image across
+    /// track (`depth_m` is the view's depth map).
     pub fn view_intervals(
         &self,
         x_m: f64,
@@ -409,7 +421,10 @@ impl<'a> Truth<'a> {
         let (w, h) = (self.g.width, self.g.height);
         let max_m = 8.0 * self.z_m.max(1.0);
         let mut out = Vec::new();
-        for r in (stride / 2..h).step_by(stride.max(1)) {
+        // The middle half across track only: the fringes are the side
+        // overlap's (a neighbouring strip's) to cover, and no spacing along
+        // this line can help a fringe point that buildings hide from it.
+        for r in (h / 4 + stride / 2..h - h / 4).step_by(stride.max(1)) {
             for i in (stride / 2..w).step_by(stride.max(1)) {
                 let d = depth_m[r * w + i] as f64;
                 if d.is_finite() && d > 0.0 {
