@@ -18,6 +18,16 @@ The occluded points file is {"points_m": [[x, y, z], ...]} in the same frame.
 
 Exit 0 when it ran (also when few images register: the figures say so), 2 with
 one line on stderr for bad input, 1 if pycolmap itself fails.
+
+The --json object: images_total, images_registered, registered_fraction,
+models (how many the mapper made; model_used is the largest), mean_reprojection_px,
+points3d, intrinsics {given, final, focal_refined}, track_length_m (first to last
+centre), similarity {scale, rotation, translation_m, roll_about_track_from},
+centre_error_m / centre_error_fraction / rotation_error_deg {median, max} over
+the registered images, completeness {points, tolerance_m, covered, fraction}
+(null without --occluded-points; 0 covered when nothing was reconstructed),
+per_image [{image, registered, centre_error_m, rotation_error_deg}], seconds.
+A figure that cannot be computed is null.
 """
 
 import argparse
@@ -309,6 +319,7 @@ def run(args):
         truth_r = [np.array([row[:3] for row in m[:3]]) @ flip for m in c2w]
         report["track_length_m"] = float(np.linalg.norm(truth_c[-1] - truth_c[0]))
 
+        by_name, per = {}, {}  # registered images by name; their errors by index
         if models:
             key = max(models, key=lambda k: (models[k].num_reg_images(), models[k].num_points3D(), -k))
             rec = models[key]
@@ -346,17 +357,6 @@ def run(args):
                 )
                 report["rotation_error_deg"] = stats(rot_errs)
                 per = {i: (float(errs[j]), rot_errs[j]) for j, i in enumerate(reg)}
-            else:
-                per = {}
-            for i, n in enumerate(names):
-                report["per_image"].append(
-                    {
-                        "image": n,
-                        "registered": n in by_name,
-                        "centre_error_m": per[i][0] if i in per else None,
-                        "rotation_error_deg": per[i][1] if i in per else None,
-                    }
-                )
             if occluded is not None:
                 comp = {
                     "points": len(occluded),
@@ -372,12 +372,22 @@ def run(args):
                     comp["fraction"] = covered / len(occluded) if occluded else None
                 report["completeness"] = comp
         elif occluded is not None:
+            # No model, no triangulated point: nothing is covered.
             report["completeness"] = {
                 "points": len(occluded),
                 "tolerance_m": args.tolerance_m,
-                "covered": 0 if report["images_registered"] else None,
-                "fraction": None,
+                "covered": 0,
+                "fraction": 0.0 if occluded else None,
             }
+        for i, n in enumerate(names):
+            report["per_image"].append(
+                {
+                    "image": n,
+                    "registered": n in by_name,
+                    "centre_error_m": per[i][0] if i in per else None,
+                    "rotation_error_deg": per[i][1] if i in per else None,
+                }
+            )
         report["seconds"] = {
             "extraction": round(t_extract - t0, 3),
             "matching": round(t_match - t_extract, 3),
