@@ -79,7 +79,7 @@ struct EvalArgs {
     /// Directory of the scene files.
     #[arg(long, default_value = "scenes")]
     scenes_dir: PathBuf,
-    /// Only these scenes (names in the scene directory, or paths); default all five.
+    /// Only these scenes (names in the scene directory, or paths); default all eight.
     #[arg(long = "scene")]
     scenes: Vec<String>,
     /// A small run (a third of the resolution, three times the view step), for CI.
@@ -88,6 +88,14 @@ struct EvalArgs {
     /// No progress bar.
     #[arg(long)]
     no_progress: bool,
+    /// Also judge each method's captures at equal counts with COLMAP
+    /// (pycolmap, `scripts/colmap_judge.py`) on canyon, courtyard and orchard,
+    /// or on every scene named with `--scene`.
+    #[arg(long)]
+    colmap: bool,
+    /// The COLMAP judge script.
+    #[arg(long, default_value = "scripts/colmap_judge.py")]
+    colmap_script: PathBuf,
 }
 
 #[derive(clap::Args)]
@@ -344,6 +352,7 @@ fn run_eval(a: EvalArgs) -> Result<ExitCode> {
         quick: a.quick,
         progress: !a.no_progress,
         decimation_table: true,
+        colmap: a.colmap.then_some(a.colmap_script),
     };
     let report = alfd::eval::run(&opts).map_err(|e| match e {
         alfd::eval::EvalError::Write { .. } => anyhow::Error::new(e),

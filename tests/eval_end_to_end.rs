@@ -37,6 +37,7 @@ fn eval_writes_report_json_and_plots() {
         quick: false,
         progress: false,
         decimation_table: true,
+        colmap: None,
     };
     let report = run(&opts).unwrap();
     let md = std::fs::read_to_string(report).unwrap();
@@ -72,6 +73,73 @@ fn eval_writes_report_json_and_plots() {
             .as_u64()
             .unwrap();
         assert!(eq.abs_diff(occ) <= 1, "{method}: {eq} vs {occ}");
+    }
+    // DESIGN §4: `targets`, and one `segments` object per segment with the
+    // truth's empirical spacing, each model's prediction and the unseen
+    // fraction predicted and true; numbers finite or null.
+    assert_eq!(v["targets"]["parallax_px"].as_f64(), Some(2.0));
+    assert_eq!(v["targets"]["unseen_fraction_max"].as_f64(), Some(0.002));
+    assert_eq!(v["targets"]["views_per_point_min"].as_u64(), Some(2));
+    let segs = v["segments"].as_array().unwrap();
+    assert_eq!(segs.len(), alfd::eval::SEGMENTS);
+    let mut last_to = f64::NEG_INFINITY;
+    for seg in segs {
+        assert_eq!(seg["scene"], "tiny");
+        let (from, to) = (
+            seg["from_m"].as_f64().unwrap(),
+            seg["to_m"].as_f64().unwrap(),
+        );
+        assert!(from < to && from >= last_to - 1e-9, "{from} {to}");
+        last_to = to;
+        let target = seg["empirical_m"]["target"].as_f64();
+        for k in ["parallax", "unseen", "views_per_point"] {
+            let e = &seg["empirical_m"][k];
+            assert!(e.is_null() || e.as_f64().unwrap() > 0.0, "{k}: {e}");
+            // The target meets every criterion, so none is tighter.
+            if let (Some(t), Some(x)) = (target, e.as_f64()) {
+                assert!(t <= x + 1e-9, "target {t} above {k} {x}");
+            }
+        }
+        for m in ["occlusion", "mmds", "sspa", "fixed"] {
+            let p = &seg["predicted_m"][m];
+            assert!(p.is_null() || p.as_f64().unwrap() > 0.0, "{m}: {p}");
+        }
+        for k in ["predicted", "truth"] {
+            let u = &seg["unseen_fraction"][k];
+            assert!(
+                u.is_null() || (0.0..=1.0).contains(&u.as_f64().unwrap()),
+                "{k}: {u}"
+            );
+        }
+        // The pixel classes of every sweep step add up.
+        for p in seg["sweep"].as_array().unwrap() {
+            let f = &p["class_fraction"];
+            if !f["both"].is_null() {
+                let sum: f64 = ["both", "one", "neither"]
+                    .iter()
+                    .map(|c| f[*c].as_f64().unwrap())
+                    .sum();
+                assert!((sum - 1.0).abs() < 1e-9, "{sum}");
+            }
+        }
+    }
+    let g = &v["tiny"]["guarantee"];
+    if !g["methods"].as_array().unwrap().is_empty() {
+        let oracle = g["oracle_captures"].as_u64().unwrap();
+        let fixed = g["fixed_captures"].as_u64().unwrap();
+        assert!(
+            oracle <= fixed,
+            "the oracle needs at most fixed's {fixed}: {oracle}"
+        );
+    }
+    for section in [
+        "Empirical permissible spacing per segment",
+        "What a target level costs",
+        "Quality by pixel class",
+        "Data volume at the targets",
+        "At equal captures: the worst segment",
+    ] {
+        assert!(md.contains(section), "report lacks {section}");
     }
 }
 

@@ -5,6 +5,7 @@
 //! segment beside each model's prediction, and the reports. Method and
 //! reading: `docs/eval.md`.
 
+pub mod colmap;
 pub mod plan;
 pub(crate) mod plot;
 pub mod recon;
@@ -109,6 +110,9 @@ pub struct EvalOptions {
     pub progress: bool,
     /// Also write the decimation table (`decimation.md`).
     pub decimation_table: bool,
+    /// `--colmap`: the judge script; it runs on [`colmap::DEFAULT_SCENES`]
+    /// (or on every scene named in `scenes`).
+    pub colmap: Option<PathBuf>,
 }
 
 impl Default for EvalOptions {
@@ -120,6 +124,7 @@ impl Default for EvalOptions {
             quick: false,
             progress: true,
             decimation_table: true,
+            colmap: None,
         }
     }
 }
@@ -370,7 +375,9 @@ pub struct Segment {
     /// Every swept spacing, finest first.
     pub sweep: Vec<SweepPoint>,
     pub truth: SegmentTruth,
-    /// Visibility intervals `(from, to)` of each sampled surface point.
+    /// The sampled surface points, and the visibility intervals `(from, to)`
+    /// of each.
+    pub points_m: Vec<[f64; 3]>,
     pub intervals: Vec<Vec<(f64, f64)>>,
     /// Largest spacing within each tolerance of [`TOLERANCES_DB`], per renderer.
     pub empirical_m: [[f64; 2]; 4],
@@ -405,6 +412,8 @@ pub struct SceneResult {
     pub runs: Vec<[MethodRun; 2]>,
     pub elapsed_s: f64,
     pub render_s: f64,
+    /// `--colmap`: the judge's JSON per method at equal captures, or why not.
+    pub colmap: Vec<(String, Result<serde_json::Value, String>)>,
 }
 
 /// Estimator parameters of one method: the defaults of the core (so the
@@ -732,7 +741,14 @@ fn min_views(
 }
 
 /// Evaluates one scene.
-pub fn evaluate_scene(scene: &Scene, res: Resolution, pb: &ProgressBar) -> SceneResult {
+/// With `colmap_dir`, each method's captures at equal counts are also
+/// exported there for COLMAP ([`colmap`]).
+pub fn evaluate_scene(
+    scene: &Scene,
+    res: Resolution,
+    pb: &ProgressBar,
+    colmap_dir: Option<&Path>,
+) -> Result<SceneResult, EvalError> {
     let start = Instant::now();
     let s = &scene.survey;
     let n = ((s.end_x_m - s.start_x_m) / res.view_step_m + 1e-9).floor() as usize + 1;
@@ -803,12 +819,12 @@ pub fn evaluate_scene(scene: &Scene, res: Resolution, pb: &ProgressBar) -> Scene
         let vpp_views: Vec<usize> = (0..res.vpp_views)
             .map(|t| a + (t * (b - a)) / (res.vpp_views - 1).max(1))
             .collect();
-        let intervals: Vec<Vec<(f64, f64)>> = vpp_views
+        let (points_m, intervals): (Vec<[f64; 3]>, Vec<Vec<(f64, f64)>>) = vpp_views
             .par_iter()
             .flat_map_iter(|&k| {
                 truth.view_intervals(views[k].x_m, &views[k].depth_m, px_stride, VPP_STEP_M)
             })
-            .collect();
+            .unzip();
         let mut lengths: Vec<f64> = intervals
             .iter()
             .map(|iv| iv.iter().map(|(f, t)| t - f).sum())
@@ -985,6 +1001,7 @@ pub fn evaluate_scene(scene: &Scene, res: Resolution, pb: &ProgressBar) -> Scene
             x1_m: xs[b],
             sweep,
             truth: seg_truth,
+            points_m,
             intervals,
             empirical_m: empirical,
             at_least: failed.map(|f| f.map(|x| !x)),
@@ -1122,7 +1139,25 @@ pub fn evaluate_scene(scene: &Scene, res: Resolution, pb: &ProgressBar) -> Scene
     } else {
         Guarantee::default()
     };
-    SceneResult {
+    if let Some(dir) = colmap_dir {
+        let occluded: Vec<[f64; 3]> = segments
+            .iter()
+            .flat_map(|sg| colmap::occluded_points(&sg.points_m, &sg.intervals, line))
+            .collect();
+        for (m, model) in METHODS.iter().enumerate() {
+            let d = dir.join(model.as_str());
+            colmap::export(
+                &d,
+                &g,
+                (s.y_m, s.altitude_m),
+                &views,
+                &runs[m][1].captures,
+                &occluded,
+            )
+            .map_err(|e| write_err(&d, e))?;
+        }
+    }
+    Ok(SceneResult {
         name: scene.name.clone(),
         description: scene.description.clone(),
         res,
@@ -1135,7 +1170,8 @@ pub fn evaluate_scene(scene: &Scene, res: Resolution, pb: &ProgressBar) -> Scene
         runs,
         elapsed_s: start.elapsed().as_secs_f64(),
         render_s,
-    }
+        colmap: Vec::new(),
+    })
 }
 
 /// The `O_max` calibration: for each candidate, the mean absolute log error of
@@ -1252,7 +1288,19 @@ pub fn run(opts: &EvalOptions) -> Result<PathBuf, EvalError> {
         let res = Resolution::of(scene, opts.quick);
         let mut scene = scene.clone();
         scene.scale_textures(res.width as f64 / scene.survey.width as f64);
-        results.push(evaluate_scene(&scene, res, &pb));
+        let judged = opts.colmap.as_ref().filter(|_| {
+            !opts.scenes.is_empty() || colmap::DEFAULT_SCENES.contains(&scene.name.as_str())
+        });
+        let dir = opts.out_dir.join("colmap").join(&scene.name);
+        let mut r = evaluate_scene(&scene, res, &pb, judged.map(|_| dir.as_path()))?;
+        if let Some(script) = judged {
+            for model in METHODS {
+                pb.set_message(format!("{}: COLMAP on {}", scene.name, model.as_str()));
+                let v = colmap::judge(script, &dir.join(model.as_str()));
+                r.colmap.push((model.as_str().to_string(), v));
+            }
+        }
+        results.push(r);
     }
     pb.set_message("plots and reports");
     for r in &results {

@@ -185,7 +185,25 @@ pub fn scene_json(r: &SceneResult) -> Value {
             json!({"method": model.as_str(), "own": setting(0), "equal": setting(1)})
         })
         .collect();
+    let colmap: Map<String, Value> = r
+        .colmap
+        .iter()
+        .map(|(m, v)| {
+            let v = match v {
+                Ok(j) => {
+                    let mut j = j.clone();
+                    if let Value::Object(o) = &mut j {
+                        o.remove("per_image");
+                    }
+                    j
+                }
+                Err(e) => json!({ "error": e }),
+            };
+            (m.clone(), v)
+        })
+        .collect();
     json!({
+        "colmap": Value::Object(colmap),
         "guarantee": {
             "fixed_spacing_m": onum(g.fixed_spacing_m),
             "fixed_captures": g.fixed_captures,
@@ -499,6 +517,49 @@ pub fn markdown(results: &[SceneResult]) -> String {
                     2
                 ),
             );
+        }
+    }
+    if results.iter().any(|r| !r.colmap.is_empty()) {
+        let _ = writeln!(s, "\n### COLMAP as a second judge, at equal captures\n");
+        let _ = writeln!(s, "`scripts/colmap_judge.py` (pycolmap, CPU): SIFT with the known intrinsics, sequential matching, incremental mapping on each method's captures at the occlusion-aware count. Centres against the truth after a similarity; completeness: the fraction of the scene's occluded surface samples (visible from less than half of the line) with a triangulated point within 0.5 m.\n");
+        let _ = writeln!(s, "| scene | method | registered / images | reprojection (px) | 3-D points | centre error median (m) | rotation error median (°) | completeness |");
+        let _ = writeln!(s, "|---|---|---:|---:|---:|---:|---:|---:|");
+        for r in results {
+            for (m, v) in &r.colmap {
+                match v {
+                    Ok(j) => {
+                        let g = |k: &str| j[k].as_f64();
+                        let comp = &j["completeness"];
+                        let _ = writeln!(
+                            s,
+                            "| {} | {} | {} / {} | {} | {} | {} | {} | {} |",
+                            r.name,
+                            m,
+                            j["images_registered"],
+                            j["images_total"],
+                            f(g("mean_reprojection_px"), 2),
+                            j["points3d"],
+                            f(j["centre_error_m"]["median"].as_f64(), 3),
+                            f(j["rotation_error_deg"]["median"].as_f64(), 2),
+                            match (comp["covered"].as_u64(), comp["points"].as_u64()) {
+                                (Some(c), Some(n)) if n > 0 =>
+                                    format!("{c} / {n} = {:.3}", c as f64 / n as f64),
+                                (_, Some(0)) => "no occluded samples".into(),
+                                _ => "–".into(),
+                            }
+                        );
+                    }
+                    Err(e) => {
+                        let _ = writeln!(
+                            s,
+                            "| {} | {} | not run: {} | | | | | |",
+                            r.name,
+                            m,
+                            e.replace('|', "/")
+                        );
+                    }
+                }
+            }
         }
     }
     s.push('\n');

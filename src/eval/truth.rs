@@ -417,7 +417,7 @@ impl<'a> Truth<'a> {
         depth_m: &[f32],
         stride: usize,
         step_m: f64,
-    ) -> Vec<Vec<(f64, f64)>> {
+    ) -> Vec<([f64; 3], Vec<(f64, f64)>)> {
         let (w, h) = (self.g.width, self.g.height);
         let max_m = 8.0 * self.z_m.max(1.0);
         let mut out = Vec::new();
@@ -429,7 +429,7 @@ impl<'a> Truth<'a> {
                 let d = depth_m[r * w + i] as f64;
                 if d.is_finite() && d > 0.0 {
                     let p = self.point(x_m, i, r, d);
-                    out.push(self.visibility(p, x_m, step_m, max_m));
+                    out.push((p, self.visibility(p, x_m, step_m, max_m)));
                 }
             }
         }
