@@ -5,9 +5,8 @@
 //! (so the captures that see it can be counted for any capture plan).
 //!
 //! Visibility is read from the true depth maps where they are unambiguous (the
-//! four capture pixels around the reprojected point all agree with its depth,
-//! or all four hold something in front of it) and settled by an exact
-//! segment-against-scene test everywhere else, so the classification does not
+//! four capture pixels around the reprojected point all agree with its depth)
+//! and settled by an exact segment-against-scene test everywhere else, so the classification does not
 //! depend on the pixel grid at occlusion edges (`tests/eval_truth.rs` checks it
 //! against a closed form and against the exact test on every pixel).
 
@@ -100,7 +99,6 @@ impl Classification {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Seen {
     Yes,
-    No,
     Unsure,
 }
 
@@ -148,20 +146,24 @@ impl<'a> Truth<'a> {
     /// `c` and the surface point `p` (exact, the renderer's primitives).
     pub fn occluded(&self, c: [f64; 3], p: [f64; 3]) -> bool {
         let d = [p[0] - c[0], p[1] - c[1], p[2] - c[2]];
-        // `p` is at parameter 1; a surface through `p` itself enters at 1 up
-        // to the rounding of a float32 depth (~1e-7).
-        const BEFORE: f64 = 1.0 - 1e-5;
+        // `p` is at parameter 1. A surface through `p` itself enters at 1 up
+        // to the rounding of its float32 depth (~1e-7 relative), which a
+        // grazing ray (a wall seen from almost above) stretches along the
+        // ray by 1/sin(angle): an occluder must lie 1 cm (plus 1e-5 of the
+        // distance) before `p` to count.
+        let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt().max(1e-9);
+        let before = 1.0 - 1e-5 - 0.01 / len;
         // The ground cannot lie between a camera above it and a point on or
         // above it.
         self.scene
             .boxes
             .iter()
-            .any(|b| ray_box(b.min_m, b.max_m, c, d).is_some_and(|(t, _)| t < BEFORE))
+            .any(|b| ray_box(b.min_m, b.max_m, c, d).is_some_and(|(t, _)| t < before))
             || self
                 .scene
                 .ellipsoids
                 .iter()
-                .any(|e| ray_ellipsoid(e.centre_m, e.radii_m, c, d).is_some_and(|t| t < BEFORE))
+                .any(|e| ray_ellipsoid(e.centre_m, e.radii_m, c, d).is_some_and(|t| t < before))
     }
 
     /// Whether the camera at `x_m` on the line sees the surface point `p`:
@@ -209,20 +211,22 @@ impl<'a> Truth<'a> {
         let c1 = (c0 + 1).min(w - 1);
         let r1 = (r0 + 1).min(h - 1);
         let tol = tolerance_m(depth_m);
-        let (mut agree, mut front) = (0, 0);
+        let mut agree = 0;
         for (r, c) in [(r0, c0), (r0, c1), (r1, c0), (r1, c1)] {
             let d = cap.depth_m[r * w + c] as f64;
             let d = if d.is_finite() && d > 0.0 { d } else { SKY_M };
             if (d - depth_m).abs() <= tol {
                 agree += 1;
-            } else if d < depth_m - tol {
-                front += 1;
             }
         }
-        match (agree, front) {
-            (4, _) => Seen::Yes,
-            (_, 4) => Seen::No,
-            _ => Seen::Unsure,
+        // Only "seen" is trusted from the map: a point whose four neighbours
+        // all hold something nearer may still show in a sliver thinner than a
+        // pixel (a wall seen almost edge-on, `--quick`'s coarse pixels), so
+        // that case goes to the exact test like any disagreement.
+        if agree == 4 {
+            Seen::Yes
+        } else {
+            Seen::Unsure
         }
     }
 
@@ -270,7 +274,6 @@ impl<'a> Truth<'a> {
                     };
                     let yes = match s {
                         Seen::Yes => true,
-                        Seen::No => false,
                         Seen::Unsure => {
                             exact_tests += 1;
                             let p = self.point(view.x_m, i, r, d);
@@ -288,7 +291,8 @@ impl<'a> Truth<'a> {
                     _ => NEITHER,
                 };
                 if c == BOTH {
-                    disparities.push((at[0].0 - at[1].0).hypot(at[0].1 - at[1].1));
+                    let (dc, dr) = (at[0].0 - at[1].0, at[0].1 - at[1].1);
+                    disparities.push((dc * dc + dr * dr).sqrt());
                 }
                 class[k] = c;
                 counts[c as usize] += 1;
