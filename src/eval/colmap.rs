@@ -22,7 +22,7 @@ pub const TOLERANCE_M: f64 = 0.5;
 /// half of the flown line (the length of their visibility runs inside it).
 pub fn occluded_points(
     points_m: &[[f64; 3]],
-    intervals: &[Vec<(f64, f64)>],
+    intervals: &[super::truth::Runs],
     line: (f64, f64),
 ) -> Vec<[f64; 3]> {
     let half = 0.5 * (line.1 - line.0);

@@ -381,7 +381,7 @@ pub struct Segment {
     /// The sampled surface points, and the visibility intervals `(from, to)`
     /// of each.
     pub points_m: Vec<[f64; 3]>,
-    pub intervals: Vec<Vec<(f64, f64)>>,
+    pub intervals: Vec<truth::Runs>,
     /// Largest spacing within each tolerance of [`TOLERANCES_DB`], per renderer.
     pub empirical_m: [[f64; 2]; 4],
     /// The sweep never left the tolerance (the true value is at least this).
@@ -726,12 +726,7 @@ fn plan_geo(truth: &Truth, views: &[View], caps: &[usize]) -> Vec<Geo> {
 /// Fewest captures of `caps_m` inside any sampled point's visibility
 /// interval; a point whose interval the line's ends cut is left out when it
 /// lacks views (the line, not the plan, is to blame).
-fn min_views(
-    points: &[Vec<(f64, f64)>],
-    caps_m: &[f64],
-    line: (f64, f64),
-    k: u32,
-) -> Option<usize> {
+fn min_views(points: &[truth::Runs], caps_m: &[f64], line: (f64, f64), k: u32) -> Option<usize> {
     points
         .iter()
         .filter_map(|iv| {
@@ -822,7 +817,7 @@ pub fn evaluate_scene(
         let vpp_views: Vec<usize> = (0..res.vpp_views)
             .map(|t| a + (t * (b - a)) / (res.vpp_views - 1).max(1))
             .collect();
-        let (points_m, intervals): (Vec<[f64; 3]>, Vec<Vec<(f64, f64)>>) = vpp_views
+        let (points_m, intervals): (Vec<[f64; 3]>, Vec<truth::Runs>) = vpp_views
             .par_iter()
             .flat_map_iter(|&k| {
                 truth.view_intervals(views[k].x_m, &views[k].depth_m, px_stride, VPP_STEP_M)
@@ -881,8 +876,9 @@ pub fn evaluate_scene(
                 .filter(|&(i, j, v)| {
                     let inner = j - i - 1;
                     inner <= GEO_VIEWS
-                        || (1..=GEO_VIEWS)
-                            .any(|m| i + (m * (j - i) + (GEO_VIEWS + 1) / 2) / (GEO_VIEWS + 1) == v)
+                        || (1..=GEO_VIEWS).any(|m| {
+                            i + (m * (j - i) + GEO_VIEWS.div_ceil(2)) / (GEO_VIEWS + 1) == v
+                        })
                 })
                 .collect();
             let geos: Vec<Geo> = geo_tasks
@@ -1096,7 +1092,7 @@ pub fn evaluate_scene(
     // segments it overlaps, then that plan judged by the truth.
     pb.set_message(format!("{}: data volume at the targets", scene.name));
     let seg_targets: Vec<Option<f64>> = segments.iter().map(|s| s.truth.target_m).collect();
-    let all_intervals: Vec<Vec<(f64, f64)>> = segments
+    let all_intervals: Vec<truth::Runs> = segments
         .iter()
         .flat_map(|s| s.intervals.iter().cloned())
         .collect();

@@ -14,6 +14,10 @@ use super::recon::{Geometry, View, SKY_M};
 use crate::render::{ray_box, ray_ellipsoid};
 use crate::scene::Scene;
 
+/// A surface point's visibility: its runs `(from, to)` of camera positions
+/// along the line, sorted and disjoint.
+pub type Runs = Vec<(f64, f64)>;
+
 /// The quality targets a spacing must meet (DESIGN §1, the `lightfield`
 /// profile's defaults).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -348,7 +352,7 @@ impl<'a> Truth<'a> {
     /// frustum along track (at most `max_m`), every change between visible
     /// and hidden bisected to 1/64 of the step. An occlusion shorter than the
     /// step may be stepped over.
-    pub fn visibility(&self, p: [f64; 3], x0: f64, step_m: f64, max_m: f64) -> Vec<(f64, f64)> {
+    pub fn visibility(&self, p: [f64; 3], x0: f64, step_m: f64, max_m: f64) -> Runs {
         let vis = |x: f64| self.visible_along_track(p, x);
         let edge = |inside: f64, outside: f64| {
             let (mut lo, mut hi) = (inside, outside);
@@ -421,7 +425,7 @@ impl<'a> Truth<'a> {
         depth_m: &[f32],
         stride: usize,
         step_m: f64,
-    ) -> Vec<([f64; 3], Vec<(f64, f64)>)> {
+    ) -> Vec<([f64; 3], Runs)> {
         let (w, h) = (self.g.width, self.g.height);
         let max_m = 8.0 * self.z_m.max(1.0);
         let mut out = Vec::new();
@@ -490,7 +494,7 @@ pub fn point_spacing(intervals: &[(f64, f64)], k: u32) -> f64 {
 
 /// The largest uniform spacing that keeps every sampled point in at least
 /// `k` captures ([`point_spacing`] of the worst point).
-pub fn views_per_point_spacing(points: &[Vec<(f64, f64)>], k: u32) -> Option<f64> {
+pub fn views_per_point_spacing(points: &[Runs], k: u32) -> Option<f64> {
     points
         .iter()
         .map(|iv| point_spacing(iv, k))
