@@ -18,6 +18,7 @@ pub mod score;
 pub mod spacing;
 pub mod timesync;
 pub mod trigger;
+pub mod visibility;
 
 pub use depth::{DepthData, DepthError, DepthImage, Intrinsics, IntrinsicsError, TrackAxis};
 pub use estimate::{estimate, Bound, Estimate, EstimateError, Estimator, NoEstimate};

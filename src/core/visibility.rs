@@ -1,0 +1,700 @@
+//! The visibility term (DESIGN §1, issue 13): along each line in the flight
+//! direction, each surface sample's interval of camera positions from which it
+//! is visible (a horizon sweep, O(n) per line, both ways), and from the
+//! intervals the unseen fraction of the mid view against spacing and the
+//! spacing that keeps every visible point in at least `k` captures.
+//!
+//! # Model
+//! A line of the depth frame is a 2-D profile in the flight plane: a sample at
+//! along-track image coordinate `t = v/f` with depth `d` (along the optical
+//! axis) is the point `x = d·(sin φ + t·cos φ)` ahead of the camera and
+//! `h = d·(cos φ − t·sin φ)` below it (camera at `x = 0`, altitude 0, pitch `φ`;
+//! eq. 5). The cameras of the survey move along `h = 0` with the same pitch.
+//!
+//! The sweep works in the projective coordinates `X = x/h`, `Y = 1/h` (for
+//! `h > 0`; the samples above the camera's altitude are mirrored, `h → −h`,
+//! which keeps every segment to the camera line). Lines map to lines and the
+//! camera line to infinity: the camera at `c` becomes the direction `(c, 1)`,
+//! and `X` is `tan` of the ray's angle from nadir, so the samples of a line are
+//! already sorted by `X` in pixel order. A sample `P` is then hidden from the
+//! camera at `c > 0` exactly when some later sample `Q` lies above the ray from
+//! `P` with slope `1/c`: the end of its interval ahead is
+//! `min over Q of (X_q − X_p)/(Y_q − Y_p)`, the tangent from `P` to the upper
+//! convex hull of the samples after it ("the highest slope so far"), kept on a
+//! stack and popped in amortised O(1) (with an occluder margin, the tangent from
+//! the lifted point is found by walking a few vertices, then bisecting: O(n)
+//! in practice, O(n log n) at worst). Behind (`c < 0`) is the same sweep on
+//! the mirrored line.
+//!
+//! Approximations, all documented where they act:
+//! - **The frame's surface stands for the scene** (a depth mesh): in front of each
+//!   sample (towards the current camera) is empty, behind it solid; consecutive
+//!   valid samples are joined. Exact for a height field seen from above (box
+//!   worlds), where the first occluder of any visible point is itself visible in
+//!   the frame; under overhangs (tree crowns) it hides too much.
+//! - **What is not in the frame cannot occlude**: occluders beyond the image ends,
+//!   in invalid pixels (skipped: the profile continues across them, the sweep
+//!   only sees valid samples) or between decimated samples are missed. The
+//!   profile is sampled at pixel resolution: on a height field the sampled
+//!   occluders lie on the true surface, so an interval is never shorter than the
+//!   truth's and longer by at most the camera travel that moves the tangent from
+//!   the true occluding corner to the sample beside it.
+//! - **Sky** (`w = 0`) is neither a surface point nor an occluder.
+//! - **2-D**: each line is treated as lying in the vertical plane of the track
+//!   (exact for every line of a nadir camera, whose lines are epipolar planes
+//!   through the flight line, and for the centre line at any pitch).
+//! - **Frustum along track only**: a camera at `c` sees a point only inside its
+//!   along-track field of view (image edges at `t = −c_x/f` and `(W − c_x)/f`),
+//!   as the truth's views per point; the across-track frustum is ignored.
+//! - **Occluder margin**: `Q` counts as an occluder of `P` only above `P` moved
+//!   towards the current camera by the relative `occluder_margin_rel` of its
+//!   distance (sensor noise and depth quantisation must not make flat ground
+//!   occlude itself).
+//!
+//! The unseen fraction takes this frame as the in-between view, with captures at
+//! `−s·b` and `(1 − s)·b`; see [`Visibility::unseen_at`].
+
+use super::depth::{DepthImage, Intrinsics, TrackAxis, TrackGeometry};
+use super::inverse::{fill_grid, DepthRange, InvGrid, SKY};
+
+/// Interior phases of the in-between view when none is configured.
+pub const DEFAULT_PHASES: usize = 15;
+
+/// `|cos φ − t·sin φ|` below which a sample's ray is taken as lying on the
+/// camera's horizon: neither below nor above the flight line, left out.
+const HORIZON_EPS: f64 = 1e-9;
+
+/// The targets and the knobs of the term.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VisibilityParams {
+    /// Largest fraction of the mid view's surface samples neither neighbouring
+    /// capture may miss (`[quality] unseen_fraction_max`).
+    pub unseen_fraction_max: f64,
+    /// Captures every visible surface point must be in (`views_per_point_min`).
+    pub views_per_point_min: u32,
+    /// Positions of the in-between view between its two captures: `s = i/(P+1)`,
+    /// `i = 1..=P`. The worst of them is reported. Against every phase in
+    /// `(0, 1)`, the fraction at `b` is at least the continuum's worst at
+    /// `b/(1 + 1/P)`, and a point's onset spacing is at most `(1 + 1/P)·L`.
+    pub phases: usize,
+    /// Relative depth margin an occluder must clear (0: exact geometry).
+    pub occluder_margin_rel: f64,
+}
+
+impl Default for VisibilityParams {
+    fn default() -> Self {
+        VisibilityParams {
+            unseen_fraction_max: 0.002,
+            views_per_point_min: 2,
+            phases: DEFAULT_PHASES,
+            occluder_margin_rel: 1e-3,
+        }
+    }
+}
+
+/// What bounds one end of a visibility interval.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum End {
+    /// A sample of the frame that the ray to the camera meets.
+    Occluder,
+    /// The camera's along-track field of view (possibly never: an infinite end).
+    Frustum,
+}
+
+/// Camera positions along the line, metres from the current camera, from which
+/// a surface sample is visible: `from_m ≤ 0 ≤ to_m` (the current camera sees it).
+/// Ends may be infinite (a frustum that never loses the point).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Interval {
+    pub from_m: f64,
+    pub to_m: f64,
+    pub from: End,
+    pub to: End,
+}
+
+impl Interval {
+    /// `L`, metres: the truth's `point_spacing` for one interval is `L / k`.
+    pub fn length_m(&self) -> f64 {
+        self.to_m - self.from_m
+    }
+
+    /// Whether an occluder (not only the field of view) cuts it.
+    pub fn occluded(&self) -> bool {
+        self.from == End::Occluder || self.to == End::Occluder
+    }
+
+    /// Whether the camera at `c_m` sees the sample (closed interval).
+    pub fn contains(&self, c_m: f64) -> bool {
+        self.from_m <= c_m && c_m <= self.to_m
+    }
+}
+
+/// Which side of the flight line a sample's ray points to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Side {
+    Below,
+    Above,
+    Horizon,
+}
+
+/// The per-sample constants of the along-track rays of one frame geometry.
+#[derive(Debug, Clone)]
+pub struct TrackRays {
+    side: Vec<Side>,
+    /// Samples below the flight line in increasing `X` (pixel order), and the
+    /// mirrored ones above it (reverse pixel order).
+    below: Vec<usize>,
+    above: Vec<usize>,
+    /// `X = x/|h|` of the ray (mirrored above the line).
+    x: Vec<f64>,
+    /// `1/|cos φ − t·sin φ|`: `Y = w · inv_g`.
+    inv_g: Vec<f64>,
+    /// The along-track frustum in camera positions per metre of depth: the
+    /// sample at depth `d` stays in view for `c ∈ d·[f_lo, f_hi]`.
+    f_lo: Vec<f64>,
+    f_hi: Vec<f64>,
+}
+
+/// `a·u ≥ b` as a range of `u` (`None`: empty).
+fn half_line_ge(a: f64, b: f64) -> Option<(f64, f64)> {
+    if a > 0.0 {
+        Some((b / a, f64::INFINITY))
+    } else if a < 0.0 {
+        Some((f64::NEG_INFINITY, b / a))
+    } else if b <= 0.0 {
+        Some((f64::NEG_INFINITY, f64::INFINITY))
+    } else {
+        None
+    }
+}
+
+impl TrackRays {
+    /// The rays of the samples at original along-track pixel indices `along_idx`.
+    /// A non-finite pitch gives no surface sample at all.
+    pub fn new(geom: &TrackGeometry, along_idx: &[usize], pitch_rad: f64) -> TrackRays {
+        let n = along_idx.len();
+        let mut rays = TrackRays {
+            side: vec![Side::Horizon; n],
+            below: Vec::new(),
+            above: Vec::new(),
+            x: vec![0.0; n],
+            inv_g: vec![0.0; n],
+            f_lo: vec![0.0; n],
+            f_hi: vec![0.0; n],
+        };
+        let f = geom.focal_px;
+        if !(pitch_rad.is_finite() && f.is_finite() && f > 0.0) {
+            return rays;
+        }
+        let (sp, cp) = pitch_rad.sin_cos();
+        // The image edges along track as angles from nadir (forward positive).
+        let t_min = -geom.c_along_px / f;
+        let t_max = (geom.along_px as f64 - geom.c_along_px) / f;
+        let (sa0, ca0) = (pitch_rad + t_min.atan()).sin_cos();
+        let (sa1, ca1) = (pitch_rad + t_max.atan()).sin_cos();
+        for (j, &i) in along_idx.iter().enumerate() {
+            let t = geom.v_px(i) / f;
+            let g = cp - t * sp;
+            let xr = sp + t * cp;
+            rays.side[j] = if g > HORIZON_EPS {
+                Side::Below
+            } else if g < -HORIZON_EPS {
+                Side::Above
+            } else {
+                continue;
+            };
+            rays.inv_g[j] = 1.0 / g.abs();
+            rays.x[j] = xr / g.abs();
+            // In view from `c` iff the direction `(u, h) = (x − c, h)` lies
+            // between the edge rays `(sin α, cos α)`: `cos α₀·u ≥ sin α₀·h` and
+            // `cos α₁·u ≤ sin α₁·h` (the cone is narrower than π). Per metre
+            // of depth, `x = xr` and `h = g`.
+            let a = half_line_ge(ca0, sa0 * g);
+            let b = half_line_ge(-ca1, -sa1 * g);
+            let (lo, hi) = match (a, b) {
+                (Some(a), Some(b)) => (a.0.max(b.0), a.1.min(b.1)),
+                _ => (0.0, 0.0),
+            };
+            // `c = x − u`; the sample itself is in view from `c = 0`.
+            rays.f_lo[j] = (xr - hi).min(0.0);
+            rays.f_hi[j] = (xr - lo).max(0.0);
+        }
+        rays.below = (0..n).filter(|&j| rays.side[j] == Side::Below).collect();
+        rays.above = (0..n)
+            .rev()
+            .filter(|&j| rays.side[j] == Side::Above)
+            .collect();
+        rays
+    }
+
+    pub fn len(&self) -> usize {
+        self.x.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.x.is_empty()
+    }
+}
+
+/// Reusable buffers of the per-line sweep.
+#[derive(Debug, Clone, Default)]
+pub struct LineScratch {
+    /// `(X, Y)` of the run's surface samples, increasing `X`.
+    pts: Vec<(f64, f64)>,
+    idx: Vec<usize>,
+    ahead: Vec<f64>,
+    behind: Vec<f64>,
+    stack: Vec<(f64, f64)>,
+}
+
+/// For points sorted by increasing `X` (`pts[i] = (X, Y)`), the camera
+/// position beyond which each is hidden (`+∞`: no point on that side rises
+/// above it): the tangent from the point (lifted by `margin` in `Y`) to the upper
+/// hull of the points after it (`behind = false`), or, mirrored (`X → −X`),
+/// before it (`behind = true`, reported as the magnitude).
+fn sweep(
+    pts: &[(f64, f64)],
+    behind: bool,
+    margin: f64,
+    stack: &mut Vec<(f64, f64)>,
+    out: &mut Vec<f64>,
+) {
+    let n = pts.len();
+    out.clear();
+    out.resize(n, f64::INFINITY);
+    stack.clear();
+    let sign = if behind { -1.0 } else { 1.0 };
+    // `slope(P, a) ≤ slope(P, b)` for `a`, `b` beyond `P`, without dividing.
+    #[inline]
+    fn not_above(p: (f64, f64), a: (f64, f64), b: (f64, f64)) -> bool {
+        (a.1 - p.1) * (b.0 - p.0) <= (b.1 - p.1) * (a.0 - p.0)
+    }
+    for k in 0..n {
+        let i = if behind { k } else { n - 1 - k };
+        let p = (sign * pts[i].0, pts[i].1);
+        // The hull of the points beyond `p`, seen from `p`: what lies on or
+        // under the chord from `p` to the next vertex is no one's tangent.
+        while let [.., b, a] = stack[..] {
+            if not_above(p, a, b) {
+                stack.pop();
+            } else {
+                break;
+            }
+        }
+        let pl = (p.0, p.1 * (1.0 + margin));
+        let tangent = if margin > 0.0 && stack.len() >= 2 {
+            // From the lifted point the tangent lies at or beyond the top:
+            // slopes along the chain rise, then fall. A small lift moves it a
+            // vertex or two: walk a few, then bisect the rest.
+            // Chain order: c = 0 is the top (nearest), stack index len−1−c.
+            let top = stack.len() - 1;
+            let at = |c: usize| stack[top - c];
+            let mut lo = 0usize;
+            while lo < top.min(4) && !not_above(pl, at(lo + 1), at(lo)) {
+                lo += 1;
+            }
+            if lo == 4 && lo < top {
+                let mut hi = top;
+                while lo < hi {
+                    let mid = (lo + hi) / 2;
+                    if not_above(pl, at(mid + 1), at(mid)) {
+                        hi = mid;
+                    } else {
+                        lo = mid + 1;
+                    }
+                }
+            }
+            Some(at(lo))
+        } else {
+            stack.last().copied()
+        };
+        if let Some(q) = tangent {
+            let dy = q.1 - pl.1;
+            if dy > 0.0 {
+                out[i] = (q.0 - p.0).max(0.0) / dy;
+            }
+        }
+        stack.push(p);
+    }
+}
+
+/// Sweeps one run of samples (sorted by `X`) both ways and emits each interval.
+fn sweep_run(
+    rays: &TrackRays,
+    line: &[f32],
+    margin: f64,
+    s: &mut LineScratch,
+    emit: &mut impl FnMut(usize, Interval),
+) {
+    if s.pts.is_empty() {
+        return;
+    }
+    sweep(&s.pts, false, margin, &mut s.stack, &mut s.ahead);
+    sweep(&s.pts, true, margin, &mut s.stack, &mut s.behind);
+    for (k, &j) in s.idx.iter().enumerate() {
+        let d = 1.0 / line[j] as f64;
+        let (f_lo, f_hi) = (d * rays.f_lo[j], d * rays.f_hi[j]);
+        let (o_lo, o_hi) = (-s.behind[k], s.ahead[k]);
+        let (from_m, from) = if o_lo > f_lo {
+            (o_lo, End::Occluder)
+        } else {
+            (f_lo, End::Frustum)
+        };
+        let (to_m, to) = if o_hi < f_hi {
+            (o_hi, End::Occluder)
+        } else {
+            (f_hi, End::Frustum)
+        };
+        emit(
+            j,
+            Interval {
+                from_m: from_m.min(0.0),
+                to_m: to_m.max(0.0),
+                from,
+                to,
+            },
+        );
+    }
+}
+
+/// Calls `emit(j, interval)` for every surface sample `j` of one line of
+/// inverse depths (`INVALID` < 0, `SKY` = 0, else 1/m), in no fixed order.
+pub fn sweep_line(
+    line: &[f32],
+    rays: &TrackRays,
+    margin_rel: f64,
+    s: &mut LineScratch,
+    mut emit: impl FnMut(usize, Interval),
+) {
+    let n = line.len().min(rays.len());
+    let margin = if margin_rel.is_finite() {
+        margin_rel.max(0.0)
+    } else {
+        0.0
+    };
+    // Below the line `X` grows with the pixel index, above it (mirrored) it
+    // falls: each run is visited in increasing `X`.
+    for order in [&rays.below, &rays.above] {
+        s.pts.clear();
+        s.idx.clear();
+        for &j in order.iter().filter(|&&j| j < n) {
+            let w = line[j];
+            if w > SKY && w.is_finite() {
+                s.pts.push((rays.x[j], w as f64 * rays.inv_g[j]));
+                s.idx.push(j);
+            }
+        }
+        sweep_run(rays, line, margin, s, &mut emit);
+    }
+}
+
+/// The intervals of one line, one entry per sample (`None`: invalid, sky, or on
+/// the camera's horizon).
+pub fn line_intervals(
+    line: &[f32],
+    rays: &TrackRays,
+    margin_rel: f64,
+    scratch: &mut LineScratch,
+    out: &mut Vec<Option<Interval>>,
+) {
+    out.clear();
+    out.resize(line.len(), None);
+    sweep_line(line, rays, margin_rel, scratch, |j, iv| out[j] = Some(iv));
+}
+
+/// The visibility term of one frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Visibility {
+    /// Lines with at least one surface sample.
+    pub lines: u64,
+    /// Surface samples (valid, not sky, off the camera's horizon): the
+    /// denominator of the unseen fraction.
+    pub samples: u64,
+    /// Samples whose interval an occluder cuts on at least one side: the only
+    /// ones that can fall between two captures.
+    pub occluded_samples: u64,
+    /// Lines with at least one occluded sample (0: the term is left out).
+    pub occluded_lines: u64,
+    /// Shortest interval of any surface sample, m.
+    pub interval_min_m: Option<f64>,
+    /// Shortest interval of an occluded sample, m.
+    pub occluded_interval_min_m: Option<f64>,
+    /// Largest spacing whose unseen fraction is at most the target (`None`:
+    /// no spacing exceeds it: too few occluded samples).
+    pub spacing_unseen_m: Option<f64>,
+    /// `min L / k` over all surface samples: every visible point in at least `k`
+    /// captures whatever the phase. Frustum-limited samples count (their `L` is
+    /// the footprint, the overlap for `k` views).
+    pub spacing_views_m: Option<f64>,
+    /// The same over occluded samples only (what the occluders add to overlap).
+    pub spacing_views_occluded_m: Option<f64>,
+    pub unseen_fraction_max: f64,
+    pub views_per_point_min: u32,
+    phases: usize,
+    /// `(from, to)` of every occluded sample, m.
+    occluded: Vec<(f32, f32)>,
+}
+
+impl Visibility {
+    fn empty(params: &VisibilityParams) -> Visibility {
+        Visibility {
+            lines: 0,
+            samples: 0,
+            occluded_samples: 0,
+            occluded_lines: 0,
+            interval_min_m: None,
+            occluded_interval_min_m: None,
+            spacing_unseen_m: None,
+            spacing_views_m: None,
+            spacing_views_occluded_m: None,
+            unseen_fraction_max: sanitize_fraction(params.unseen_fraction_max),
+            views_per_point_min: params.views_per_point_min.max(1),
+            phases: params.phases.max(1),
+            occluded: Vec::new(),
+        }
+    }
+
+    /// Whether any line has an occluder (otherwise the term says nothing the
+    /// coverage bound does not).
+    pub fn has_occluders(&self) -> bool {
+        self.occluded_samples > 0
+    }
+
+    /// The phases `s` of the in-between view (captures at `−s·b`, `(1−s)·b`).
+    pub fn phases(&self) -> impl Iterator<Item = f64> {
+        let p = self.phases;
+        (1..=p).map(move |i| i as f64 / (p + 1) as f64)
+    }
+
+    /// Predicted unseen fraction of the in-between view at spacing `b`: this
+    /// frame stands for the view, its two neighbouring captures at `−s·b` and
+    /// `(1 − s)·b`; the fraction of its surface samples neither sees, worst over
+    /// the phases `s`. A sample is unseen iff `b > max(−from/s, to/(1−s))` (both
+    /// captures outside its interval), so the fraction never falls as `b` grows.
+    /// A sample out of both captures' frusta counts as unseen (the truth leaves
+    /// it out of both counts: only at spacings beyond the footprint, which the
+    /// coverage bound excludes). In `[0, 1]`; 0 for a non-positive or NaN `b`.
+    pub fn unseen_at(&self, spacing_m: f64) -> f64 {
+        if self.samples == 0 || spacing_m.is_nan() || spacing_m <= 0.0 {
+            return 0.0;
+        }
+        // `β ≥ L` at every phase: only shorter intervals can be unseen.
+        let cand: Vec<(f64, f64)> = self
+            .occluded
+            .iter()
+            .map(|&(a, b)| (a as f64, b as f64))
+            .filter(|(a, b)| b - a < spacing_m)
+            .collect();
+        let worst = self
+            .phases()
+            .map(|s| {
+                let k = Phase::new(s);
+                cand.iter()
+                    .map(|&(a, b)| (k.onset_m(a, b) < spacing_m) as usize)
+                    .sum::<usize>()
+            })
+            .max()
+            .unwrap_or(0);
+        worst as f64 / self.samples as f64
+    }
+}
+
+/// One phase `s` of the in-between view, as the reciprocals the onsets need.
+#[derive(Debug, Clone, Copy)]
+struct Phase {
+    inv_s: f64,
+    inv_rest: f64,
+}
+
+impl Phase {
+    fn new(s: f64) -> Phase {
+        Phase {
+            inv_s: 1.0 / s,
+            inv_rest: 1.0 / (1.0 - s),
+        }
+    }
+
+    /// The spacing beyond which captures at `−s·b` and `(1−s)·b` both miss
+    /// `[from, to]`: `max(−from/s, to/(1−s))`.
+    #[inline]
+    fn onset_m(self, from_m: f64, to_m: f64) -> f64 {
+        (-from_m * self.inv_s).max(to_m * self.inv_rest)
+    }
+}
+
+fn sanitize_fraction(u: f64) -> f64 {
+    if u.is_nan() {
+        0.0
+    } else {
+        u.clamp(0.0, 1.0)
+    }
+}
+
+/// The largest spacing with at most `k_max` unseen samples at every phase: per
+/// phase the `(k_max+1)`-th smallest onset, the least of them over phases. The
+/// middle phase goes first, and later phases look only at samples that can
+/// beat the best so far (`onset ≥ L`).
+fn unseen_spacing(records: &[(f32, f32)], k_max: usize, phases: usize) -> Option<f64> {
+    if records.len() <= k_max {
+        return None;
+    }
+    let p = phases.max(1);
+    let mid = p.div_ceil(2);
+    let mut order: Vec<usize> = vec![mid];
+    for d in 1..=p {
+        if mid + d <= p {
+            order.push(mid + d);
+        }
+        if mid > d {
+            order.push(mid - d);
+        }
+    }
+    let mut best = f64::INFINITY;
+    let mut buf: Vec<f64> = Vec::new();
+    for i in order {
+        let k = Phase::new(i as f64 / (p + 1) as f64);
+        let onset = |&(a, b): &(f32, f32)| k.onset_m(a as f64, b as f64);
+        // Counted first (branch-free): most phases do not beat the best.
+        let n = records
+            .iter()
+            .map(|r| (onset(r) < best) as usize)
+            .sum::<usize>();
+        if n > k_max {
+            buf.clear();
+            buf.extend(records.iter().map(onset).filter(|&o| o < best));
+            let (_, v, _) = buf.select_nth_unstable_by(k_max, f64::total_cmp);
+            best = best.min(*v);
+        }
+    }
+    best.is_finite().then_some(best)
+}
+
+/// The visibility term over every line of `grid` (the estimator's decimated
+/// inverse-depth grid: decimation is its step, along and across track).
+pub fn visibility(
+    grid: &InvGrid,
+    geom: &TrackGeometry,
+    pitch_rad: f64,
+    params: &VisibilityParams,
+) -> Visibility {
+    let mut v = Visibility::empty(params);
+    if grid.per_line == 0 || grid.lines == 0 || !pitch_rad.is_finite() {
+        return v;
+    }
+    let rays = TrackRays::new(geom, &grid.along_idx, pitch_rad);
+    let mut scratch = LineScratch::default();
+    let (mut min_all, mut min_occ) = (f64::INFINITY, f64::INFINITY);
+    for a in 0..grid.lines {
+        let (mut surface, mut occluded) = (false, false);
+        sweep_line(
+            grid.line(a),
+            &rays,
+            params.occluder_margin_rel,
+            &mut scratch,
+            |_, iv| {
+                surface = true;
+                v.samples += 1;
+                let l = iv.length_m();
+                min_all = min_all.min(l);
+                if iv.occluded() {
+                    occluded = true;
+                    v.occluded_samples += 1;
+                    min_occ = min_occ.min(l);
+                    v.occluded.push((iv.from_m as f32, iv.to_m as f32));
+                }
+            },
+        );
+        v.lines += surface as u64;
+        v.occluded_lines += occluded as u64;
+    }
+    let k = v.views_per_point_min as f64;
+    v.interval_min_m = min_all.is_finite().then_some(min_all);
+    v.occluded_interval_min_m = min_occ.is_finite().then_some(min_occ);
+    v.spacing_views_m = v.interval_min_m.map(|l| l / k);
+    v.spacing_views_occluded_m = v.occluded_interval_min_m.map(|l| l / k);
+    if v.samples > 0 && v.unseen_fraction_max < 1.0 {
+        // At most `k_max` unseen samples keeps the fraction within the target.
+        let k_max = (v.unseen_fraction_max * v.samples as f64).floor() as usize;
+        v.spacing_unseen_m = unseen_spacing(&v.occluded, k_max, v.phases);
+    }
+    v
+}
+
+/// [`visibility`] of a depth image sampled every `step` pixels (every valid
+/// depth, no range limits): the one-shot form for tests and the command line.
+pub fn visibility_of_image(
+    image: &DepthImage,
+    intr: &Intrinsics,
+    axis: TrackAxis,
+    step: usize,
+    pitch_rad: f64,
+    params: &VisibilityParams,
+) -> Visibility {
+    let mut grid = InvGrid::default();
+    fill_grid(image, axis, step, &DepthRange::default(), &mut grid);
+    visibility(&grid, &intr.track(axis), pitch_rad, params)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sweep_finds_the_highest_slope_ahead() {
+        // Flat, then a step up: the first point is hidden beyond the tangent
+        // over the step's top, (3 − 0)/(2 − 1) = 3.
+        let pts = [(0.0, 1.0), (1.0, 1.0), (3.0, 2.0), (4.0, 2.0)];
+        let mut out = Vec::new();
+        sweep(&pts, false, 0.0, &mut Vec::new(), &mut out);
+        assert_eq!(out[0], 3.0);
+        assert_eq!(out[1], 2.0);
+        assert!(out[2].is_infinite() && out[3].is_infinite());
+        // Behind: nothing before a point rises above it.
+        sweep(&pts, true, 0.0, &mut Vec::new(), &mut out);
+        assert!(out.iter().all(|c| c.is_infinite()));
+    }
+
+    #[test]
+    fn lifted_tangent_matches_brute_force() {
+        let x: Vec<f64> = (0..40).map(|i| i as f64 * 0.37).collect();
+        let y: Vec<f64> = (0..40)
+            .map(|i| 1.0 + ((i * 7919) % 13) as f64 * 0.1)
+            .collect();
+        let pts: Vec<(f64, f64)> = x.iter().copied().zip(y.iter().copied()).collect();
+        for margin in [0.0, 0.01, 0.2] {
+            for behind in [false, true] {
+                let mut out = Vec::new();
+                sweep(&pts, behind, margin, &mut Vec::new(), &mut out);
+                for i in 0..x.len() {
+                    let yl = y[i] * (1.0 + margin);
+                    let others: Vec<usize> = if behind {
+                        (0..i).collect()
+                    } else {
+                        (i + 1..x.len()).collect()
+                    };
+                    let brute = others
+                        .into_iter()
+                        .filter(|&q| y[q] > yl)
+                        .map(|q| (x[q] - x[i]).abs() / (y[q] - yl))
+                        .fold(f64::INFINITY, f64::min);
+                    assert!(
+                        (out[i] - brute).abs() <= 1e-12 * brute.abs().max(1.0)
+                            || (out[i].is_infinite() && brute.is_infinite()),
+                        "margin {margin} behind {behind} point {i}: sweep {} brute {brute}",
+                        out[i]
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn unseen_spacing_is_the_order_statistic() {
+        // Symmetric intervals of length 2, 4, 6: at the middle phase the onset
+        // is the length.
+        let recs = [(-1.0f32, 1.0f32), (-2.0, 2.0), (-3.0, 3.0)];
+        assert_eq!(unseen_spacing(&recs, 0, 1), Some(2.0));
+        assert_eq!(unseen_spacing(&recs, 1, 1), Some(4.0));
+        assert_eq!(unseen_spacing(&recs, 3, 1), None);
+    }
+}
