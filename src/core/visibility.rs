@@ -1,58 +1,7 @@
-//! The visibility term (DESIGN §1, issue 13): along each line in the flight
-//! direction, each surface sample's interval of camera positions from which it
-//! is visible (a horizon sweep, O(n) per line, both ways), and from the
-//! intervals the unseen fraction of the mid view against spacing and the
-//! spacing that keeps every visible point in at least `k` captures.
-//!
-//! # Model
-//! A line of the depth frame is a 2-D profile in the flight plane: a sample at
-//! along-track image coordinate `t = v/f` with depth `d` (along the optical
-//! axis) is the point `x = d·(sin φ + t·cos φ)` ahead of the camera and
-//! `h = d·(cos φ − t·sin φ)` below it (camera at `x = 0`, altitude 0, pitch `φ`;
-//! eq. 5). The cameras of the survey move along `h = 0` with the same pitch.
-//!
-//! The sweep works in the projective coordinates `X = x/h`, `Y = 1/h` (for
-//! `h > 0`; the samples above the camera's altitude are mirrored, `h → −h`,
-//! which keeps every segment to the camera line). Lines map to lines and the
-//! camera line to infinity: the camera at `c` becomes the direction `(c, 1)`,
-//! and `X` is `tan` of the ray's angle from nadir, so the samples of a line are
-//! already sorted by `X` in pixel order. A sample `P` is then hidden from the
-//! camera at `c > 0` exactly when some later sample `Q` lies above the ray from
-//! `P` with slope `1/c`: the end of its interval ahead is
-//! `min over Q of (X_q − X_p)/(Y_q − Y_p)`, the tangent from `P` to the upper
-//! convex hull of the samples after it ("the highest slope so far"), kept on a
-//! stack and popped in amortised O(1) (with an occluder margin, the tangent from
-//! the lifted point is found by walking a few vertices, then bisecting: O(n)
-//! in practice, O(n log n) at worst). Behind (`c < 0`) is the same sweep on
-//! the mirrored line.
-//!
-//! Approximations, all documented where they act:
-//! - **The frame's surface stands for the scene** (a depth mesh): in front of each
-//!   sample (towards the current camera) is empty, behind it solid; consecutive
-//!   valid samples are joined. Exact for a height field seen from above (box
-//!   worlds), where the first occluder of any visible point is itself visible in
-//!   the frame; under overhangs (tree crowns) it hides too much.
-//! - **What is not in the frame cannot occlude**: occluders beyond the image ends,
-//!   in invalid pixels (skipped: the profile continues across them, the sweep
-//!   only sees valid samples) or between decimated samples are missed. The
-//!   profile is sampled at pixel resolution: on a height field the sampled
-//!   occluders lie on the true surface, so an interval is never shorter than the
-//!   truth's and longer by at most the camera travel that moves the tangent from
-//!   the true occluding corner to the sample beside it.
-//! - **Sky** (`w = 0`) is neither a surface point nor an occluder.
-//! - **2-D**: each line is treated as lying in the vertical plane of the track
-//!   (exact for every line of a nadir camera, whose lines are epipolar planes
-//!   through the flight line, and for the centre line at any pitch).
-//! - **Frustum along track only**: a camera at `c` sees a point only inside its
-//!   along-track field of view (image edges at `t = −c_x/f` and `(W − c_x)/f`),
-//!   as the truth's views per point; the across-track frustum is ignored.
-//! - **Occluder margin**: `Q` counts as an occluder of `P` only above `P` moved
-//!   towards the current camera by the relative `occluder_margin_rel` of its
-//!   distance (sensor noise and depth quantisation must not make flat ground
-//!   occlude itself).
-//!
-//! The unseen fraction takes this frame as the in-between view, with captures at
-//! `−s·b` and `(1 − s)·b`; see [`Visibility::unseen_at`].
+//! The visibility term (DESIGN §1, issue 13): each surface sample's interval of
+//! camera positions along track from which it is visible (a horizon sweep per
+//! line), and from the intervals the unseen fraction against spacing and the
+//! views per point. Invariant: every interval holds 0 (the current camera).
 
 use super::depth::{DepthImage, Intrinsics, TrackAxis, TrackGeometry};
 use super::inverse::{fill_grid, DepthRange, InvGrid, SKY};
@@ -571,6 +520,56 @@ fn unseen_spacing(records: &[(f32, f32)], k_max: usize, phases: usize) -> Option
 
 /// The visibility term over every line of `grid` (the estimator's decimated
 /// inverse-depth grid: decimation is its step, along and across track).
+///
+/// # Model
+/// A line of the depth frame is a 2-D profile in the flight plane: a sample at
+/// along-track image coordinate `t = v/f` with depth `d` (along the optical
+/// axis) is the point `x = d·(sin φ + t·cos φ)` ahead of the camera and
+/// `h = d·(cos φ − t·sin φ)` below it (camera at `x = 0`, altitude 0, pitch `φ`;
+/// eq. 5). The cameras of the survey move along `h = 0` with the same pitch.
+///
+/// The sweep works in the projective coordinates `X = x/h`, `Y = 1/h` (for
+/// `h > 0`; the samples above the camera's altitude are mirrored, `h → −h`,
+/// which keeps every segment to the camera line). Lines map to lines and the
+/// camera line to infinity: the camera at `c` becomes the direction `(c, 1)`,
+/// and `X` is `tan` of the ray's angle from nadir, so the samples of a line are
+/// already sorted by `X` in pixel order. A sample `P` is then hidden from the
+/// camera at `c > 0` exactly when some later sample `Q` lies above the ray from
+/// `P` with slope `1/c`: the end of its interval ahead is
+/// `min over Q of (X_q − X_p)/(Y_q − Y_p)`, the tangent from `P` to the upper
+/// convex hull of the samples after it ("the highest slope so far"), kept on a
+/// stack and popped in amortised O(1) (with an occluder margin, the tangent from
+/// the lifted point is found by walking a few vertices, then bisecting: O(n)
+/// in practice, O(n log n) at worst). Behind (`c < 0`) is the same sweep on
+/// the mirrored line.
+///
+/// Approximations, all documented where they act:
+/// - **The frame's surface stands for the scene** (a depth mesh): in front of each
+///   sample (towards the current camera) is empty, behind it solid; consecutive
+///   valid samples are joined. Exact for a height field seen from above (box
+///   worlds), where the first occluder of any visible point is itself visible in
+///   the frame; under overhangs (tree crowns) it hides too much.
+/// - **What is not in the frame cannot occlude**: occluders beyond the image ends,
+///   in invalid pixels (skipped: the profile continues across them, the sweep
+///   only sees valid samples) or between decimated samples are missed. The
+///   profile is sampled at pixel resolution: on a height field the sampled
+///   occluders lie on the true surface, so an interval is never shorter than the
+///   truth's and longer by at most the camera travel that moves the tangent from
+///   the true occluding corner to the sample beside it.
+/// - **Sky** (`w = 0`) is neither a surface point nor an occluder.
+/// - **2-D**: each line is treated as lying in the vertical plane of the track
+///   (exact for every line of a nadir camera, whose lines are epipolar planes
+///   through the flight line, and for the centre line at any pitch).
+/// - **Frustum along track only**: a camera at `c` sees a point only inside its
+///   along-track field of view (image edges at `t = −c_x/f` and `(W − c_x)/f`),
+///   as the truth's views per point; the across-track frustum is ignored.
+/// - **Occluder margin**: `Q` counts as an occluder of `P` only above `P` moved
+///   towards the current camera by the relative `occluder_margin_rel` of its
+///   distance (sensor noise and depth quantisation must not make flat ground
+///   occlude itself).
+///
+/// The unseen fraction takes this frame as the in-between view, with captures at
+/// `−s·b` and `(1 − s)·b`; see [`Visibility::unseen_at`].
 pub fn visibility(
     grid: &InvGrid,
     geom: &TrackGeometry,
