@@ -13,7 +13,8 @@ mod report;
 mod tables;
 pub mod truth;
 
-use crate::core::{Estimate, Estimator, EstimatorParams, Model};
+use crate::core::visibility::{visibility_of_image, Visibility, VisibilityParams};
+use crate::core::{Estimate, Estimator, EstimatorParams, Model, TrackAxis};
 use crate::metrics::{psnr, ssim_map};
 use crate::render::{render, survey_camera, RenderOptions, SensorModel};
 use crate::scene::{Scene, SceneError};
@@ -211,6 +212,14 @@ pub struct ViewEstimate {
     pub density_per_m: f64,
     pub w_min: Option<f64>,
     pub w_max: Option<f64>,
+    /// The visibility term of issue 13 (`core::visibility`) on this view: the
+    /// largest spacing keeping its unseen fraction within the target, and the
+    /// one keeping every point of the middle half across track (as the truth
+    /// samples them) in k captures; `visibility_m` is the spacing of that
+    /// model, the tightest of these and MMDS (the 2 px parallax target).
+    pub vis_unseen_m: Option<f64>,
+    pub vis_views_m: Option<f64>,
+    pub visibility_m: Option<f64>,
 }
 
 /// Quality per pixel class, pooled over a set of scored views: PSNR from the
@@ -366,6 +375,10 @@ pub struct SegmentTruth {
     pub parallax_truth_px: Option<f64>,
     pub unseen_predicted: Option<f64>,
     pub unseen_truth: Option<f64>,
+    /// The visibility model (issue 13): its median spacing over the segment's
+    /// views, and the unseen fraction it predicts at the target spacing.
+    pub visibility_predicted_m: Option<f64>,
+    pub unseen_visibility_predicted: Option<f64>,
 }
 
 /// The empirical permissible spacing of one segment.
@@ -445,7 +458,7 @@ fn view_estimate(
     ests: &mut [Estimator],
     img: &crate::core::DepthImage,
     g: &Geometry,
-) -> ViewEstimate {
+) -> (ViewEstimate, Visibility) {
     let intr = crate::core::Intrinsics::from_focal_px(
         g.width,
         g.height,
@@ -467,7 +480,36 @@ fn view_estimate(
             v.w_max = e.inv_depth.map(|i| i.max_per_m);
         }
     }
-    v
+    let vp = VisibilityParams::default();
+    let full = visibility_of_image(img, &intr, TrackAxis::Rows, 1, g.pitch_rad, &vp);
+    v.vis_unseen_m = full.spacing_unseen_m;
+    let quarter = g.height / 4;
+    let rows = g.height - 2 * quarter;
+    if let (crate::core::DepthData::Z16 { data, scale_m }, true) = (img.data(), rows > 0) {
+        let middle = crate::core::DepthImage::new(
+            g.width,
+            rows,
+            crate::core::DepthData::Z16 {
+                data: data[quarter * g.width..(quarter + rows) * g.width].to_vec(),
+                scale_m: *scale_m,
+            },
+        )
+        .expect("a crop of a valid frame");
+        let mi = crate::core::Intrinsics::from_focal_px(
+            g.width,
+            rows,
+            g.focal_px,
+            Some((g.cx_px, g.cy_px - quarter as f64)),
+        )
+        .expect("valid intrinsics");
+        v.vis_views_m =
+            visibility_of_image(&middle, &mi, TrackAxis::Rows, 1, g.pitch_rad, &vp).spacing_views_m;
+    }
+    v.visibility_m = [v.mmds_m, v.vis_unseen_m, v.vis_views_m]
+        .into_iter()
+        .flatten()
+        .reduce(f64::min);
+    (v, full)
 }
 
 /// `w_opt` of an interval: the middle of the inverse-depth range both ends see.
@@ -673,7 +715,8 @@ fn summarise(
 /// worst segment's empirical spacing and the oracle.
 #[derive(Debug, Clone, Default)]
 pub struct Guarantee {
-    /// For occlusion, MMDS and SSPA (the first three of [`METHODS`]).
+    /// For occlusion, MMDS, SSPA (the first three of [`METHODS`]) and the
+    /// visibility model.
     pub methods: Vec<GuaranteeRun>,
     pub fixed_spacing_m: Option<f64>,
     pub fixed_captures: Option<usize>,
@@ -684,6 +727,8 @@ pub struct Guarantee {
 /// One method scaled until its captures meet the targets on every segment.
 #[derive(Debug, Clone, Default)]
 pub struct GuaranteeRun {
+    /// `occlusion`, `mmds`, `sspa` or `visibility` (issue 13's model).
+    pub method: &'static str,
     pub scale: f64,
     pub captures: usize,
     /// The truth on that plan: worst segment's geometry, fewest captures
@@ -772,6 +817,7 @@ pub fn evaluate_scene(
     // Views render in parallel over rows inside; estimates are cheap.
     let mut views = Vec::with_capacity(n);
     let mut estimates = Vec::with_capacity(n);
+    let mut visibilities: Vec<Visibility> = Vec::with_capacity(n);
     let mut ests: Vec<Estimator> = METHODS
         .iter()
         .map(|&m| Estimator::new(method_params(m, 1.0)))
@@ -782,7 +828,9 @@ pub fn evaluate_scene(
             &survey_camera(scene, x, res.width, res.height),
             &opts,
         );
-        estimates.push(view_estimate(&mut ests, &frame.z16(&sensor), &g));
+        let (e, vis) = view_estimate(&mut ests, &frame.z16(&sensor), &g);
+        estimates.push(e);
+        visibilities.push(vis);
         views.push(View {
             x_m: x,
             lum: frame.luminance(),
@@ -1005,6 +1053,14 @@ pub fn evaluate_scene(
             unseen_predicted: target_m
                 .and_then(|t| median(seg_est.iter().map(|e| e.density_per_m * t).collect())),
             unseen_truth: at_target.map(|sp| sp.geo.unseen_worst),
+            visibility_predicted_m: median(
+                seg_est
+                    .iter()
+                    .map(|e| e.visibility_m.unwrap_or(f64::INFINITY))
+                    .collect(),
+            ),
+            unseen_visibility_predicted: target_m
+                .and_then(|t| median(visibilities[a..=b].iter().map(|v| v.unseen_at(t)).collect())),
         };
         segments.push(Segment {
             first: a,
@@ -1098,9 +1154,21 @@ pub fn evaluate_scene(
         .collect();
     let line = (xs[0], xs[n - 1]);
     let guarantee = if seg_targets.iter().all(|t| t.is_some()) {
-        let methods = (0..3)
+        let limits = EstimatorParams::default();
+        let visibility_spacing: Vec<Option<f64>> = estimates
+            .iter()
+            .map(|e| {
+                e.visibility_m
+                    .map(|v| v.clamp(limits.spacing_min_m, limits.spacing_max_m))
+            })
+            .collect();
+        let methods = (0..4)
             .map(|m| {
-                let sp = spacing_of(m);
+                let (name, sp) = if m < 3 {
+                    (METHODS[m].as_str(), spacing_of(m))
+                } else {
+                    ("visibility", visibility_spacing.clone())
+                };
                 let ok = |c: f64| {
                     let caps = plan::captures(&sp, res.view_step_m, s.speed_mps, c);
                     plan_within(&caps, &segs, &seg_targets, res.view_step_m)
@@ -1124,6 +1192,7 @@ pub fn evaluate_scene(
                 let caps_m: Vec<f64> = caps.iter().map(|&c| xs[c]).collect();
                 let mv = min_views(&all_intervals, &caps_m, line, targets.views_per_point_min);
                 GuaranteeRun {
+                    method: name,
                     scale: lo,
                     captures: caps.len(),
                     meets: geo.meets(&targets)

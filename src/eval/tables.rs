@@ -88,7 +88,15 @@ pub fn segments_json(results: &[SceneResult]) -> Value {
             for (m, model) in METHODS.iter().enumerate() {
                 pred.insert(model.as_str().into(), onum(seg.predicted_m[m]));
             }
-            let ln_err = |m: usize| match (seg.predicted_m[m], t.target_m) {
+            pred.insert("visibility".into(), onum(t.visibility_predicted_m));
+            let ln_err = |m: usize| match (
+                if m < 3 {
+                    seg.predicted_m[m]
+                } else {
+                    t.visibility_predicted_m
+                },
+                t.target_m,
+            ) {
                 (Some(p), Some(e)) if p.is_finite() && !t.target_at_least => num((p / e).ln()),
                 _ => Value::Null,
             };
@@ -111,8 +119,8 @@ pub fn segments_json(results: &[SceneResult]) -> Value {
                     "psnr_2db": {"lightfield": num(seg.empirical_m[2][0]), "warp": num(seg.empirical_m[2][1])},
                 },
                 "predicted_m": Value::Object(pred),
-                "ln_error": {"occlusion": ln_err(0), "mmds": ln_err(1), "sspa": ln_err(2)},
-                "unseen_fraction": {"predicted": onum(t.unseen_predicted), "truth": onum(t.unseen_truth)},
+                "ln_error": {"occlusion": ln_err(0), "mmds": ln_err(1), "sspa": ln_err(2), "visibility": ln_err(3)},
+                "unseen_fraction": {"predicted": onum(t.unseen_predicted), "predicted_visibility": onum(t.unseen_visibility_predicted), "truth": onum(t.unseen_truth)},
                 "parallax_px": {"predicted": onum(t.parallax_predicted_px), "truth": onum(t.parallax_truth_px)},
                 "visibility_interval_m": {"min": onum(t.interval_min_m), "p01": onum(t.interval_p01_m), "points": t.points},
                 "sweep": seg.sweep.iter().map(|p| json!({
@@ -150,10 +158,9 @@ pub fn scene_json(r: &SceneResult) -> Value {
     let methods: Vec<Value> = g
         .methods
         .iter()
-        .zip(METHODS)
-        .map(|(run, model)| {
+        .map(|run| {
             json!({
-                "method": model.as_str(),
+                "method": run.method,
                 "scale": num(run.scale),
                 "captures": run.captures,
                 "unseen_worst": num(run.geo.unseen_worst),
@@ -236,7 +243,7 @@ pub fn markdown(results: &[SceneResult]) -> String {
             let tr = &seg.truth;
             let _ = writeln!(
                 s,
-                "| {} | {} | {:.1} – {:.1} | {} | {} | {} | {} ({}) | {} | {} | {} | {} | {} / {} | {} / {} |",
+                "| {} | {} | {:.1} – {:.1} | {} | {} | {} | {} ({}) | {} | {} | {} | {} | {} | {} / {} | {} / {} / {} |",
                 r.name,
                 held(&r.name),
                 seg.x0_m,
@@ -250,26 +257,36 @@ pub fn markdown(results: &[SceneResult]) -> String {
                 f(seg.predicted_m[0], 3),
                 f(seg.predicted_m[1], 3),
                 f(seg.predicted_m[2], 3),
+                f(tr.visibility_predicted_m, 3),
                 f(tr.parallax_predicted_px, 2),
                 f(tr.parallax_truth_px, 2),
                 f(tr.unseen_predicted, 4),
+                f(tr.unseen_visibility_predicted, 4),
                 f(tr.unseen_truth, 4),
             );
         }
     }
 
-    let _ = writeln!(s, "\nAccuracy of each model against the target spacing, mean |ln(prediction / empirical)| over segments with a bounded empirical value (number of segments):\n");
+    let _ = writeln!(s, "\nAccuracy of each model against the target spacing: |ln(prediction / empirical)| over segments with a bounded empirical value, mean / median / worst (number of segments). `visibility` is issue 13's open-loop model from one frame: min(MMDS, the spacing keeping the predicted unseen fraction ≤ target, the spacing keeping every point in ≥ k captures).\n");
     let _ = writeln!(s, "| model | held in | held out |");
     let _ = writeln!(s, "|---|---:|---:|");
-    for (m, model) in METHODS.iter().enumerate().take(3) {
+    for (m, model) in ["occlusion", "mmds", "sspa", "visibility"]
+        .iter()
+        .enumerate()
+    {
         let acc = |inside: bool| {
-            let mut v = Vec::new();
+            let mut v: Vec<f64> = Vec::new();
             for r in results
                 .iter()
                 .filter(|r| CALIBRATION_FIT.contains(&r.name.as_str()) == inside)
             {
                 for seg in &r.segments {
-                    if let (Some(p), Some(e)) = (seg.predicted_m[m], seg.truth.target_m) {
+                    let pred = if m < 3 {
+                        seg.predicted_m[m]
+                    } else {
+                        seg.truth.visibility_predicted_m
+                    };
+                    if let (Some(p), Some(e)) = (pred, seg.truth.target_m) {
                         if p.is_finite() && !seg.truth.target_at_least {
                             v.push((p / e).ln().abs());
                         }
@@ -279,14 +296,17 @@ pub fn markdown(results: &[SceneResult]) -> String {
             if v.is_empty() {
                 "–".to_string()
             } else {
+                v.sort_by(f64::total_cmp);
                 format!(
-                    "{:.3} ({})",
+                    "{:.3} / {:.3} / {:.3} ({})",
                     v.iter().sum::<f64>() / v.len() as f64,
+                    v[v.len() / 2],
+                    v[v.len() - 1],
                     v.len()
                 )
             }
         };
-        let _ = writeln!(s, "| {} | {} | {} |", model.as_str(), acc(true), acc(false));
+        let _ = writeln!(s, "| {} | {} | {} |", model, acc(true), acc(false));
     }
 
     let _ = writeln!(s, "\n### The sweeps' geometry\n");
@@ -457,7 +477,7 @@ pub fn markdown(results: &[SceneResult]) -> String {
             );
             continue;
         }
-        for (run, model) in g.methods.iter().zip(METHODS) {
+        for run in &g.methods {
             let ratio = |d: Option<usize>| {
                 d.map_or("–".into(), |d| {
                     format!("{:.2}", run.captures as f64 / d as f64)
@@ -470,7 +490,7 @@ pub fn markdown(results: &[SceneResult]) -> String {
                 f(g.fixed_spacing_m, 2),
                 g.fixed_captures.map_or("–".into(), |c| c.to_string()),
                 g.oracle_captures.map_or("–".into(), |c| c.to_string()),
-                model.as_str(),
+                run.method,
                 run.scale,
                 run.captures,
                 ratio(g.fixed_captures),
