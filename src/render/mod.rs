@@ -394,7 +394,7 @@ fn lit(albedo: [f32; 3], normal: [f64; 3]) -> [f32; 3] {
     [albedo[0] * l, albedo[1] * l, albedo[2] * l]
 }
 
-/// Colour of a traced ray (sky when it met nothing), texture from the table.
+/// Colour of a traced ray (sky when it met nothing), polynomial-sine texture.
 #[inline]
 fn shade(scene: &Scene, found: Option<(f64, Surface)>, o: [f64; 3], d: [f64; 3]) -> [f32; 3] {
     match found {
@@ -440,11 +440,11 @@ pub fn render(scene: &Scene, camera: &Camera, opts: &RenderOptions) -> Frame {
                 let mut acc = [0f32; 3];
                 for (sy, &y) in ys.iter().enumerate() {
                     for sx in 0..n {
-                        let d = direction(cam.a, cam.u, cam.v, xs[i * n + sx], y);
-                        let found = if mid == Some(sx) && mid == Some(sy) {
-                            centre
+                        let (d, found) = if mid == Some(sx) && mid == Some(sy) {
+                            (dc, centre)
                         } else {
-                            nearest(scene, prims(), o, d)
+                            let d = direction(cam.a, cam.u, cam.v, xs[i * n + sx], y);
+                            (d, nearest(scene, prims(), o, d))
                         };
                         let c = shade(scene, found, o, d);
                         acc[0] += c[0];
@@ -465,7 +465,7 @@ pub fn render(scene: &Scene, camera: &Camera, opts: &RenderOptions) -> Frame {
 
 /// [`render`] by its definition: every ray through [`trace`] against every
 /// primitive, textures from exact sines. Slow; the fast renderer's depth must
-/// equal this one's bit for bit and its colour within the sine table's error.
+/// equal this one's bit for bit and its colour within the polynomial sines' error.
 pub fn render_reference(scene: &Scene, camera: &Camera, opts: &RenderOptions) -> Frame {
     let w = camera.intrinsics.width();
     let h = camera.intrinsics.height();
