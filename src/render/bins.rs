@@ -121,7 +121,7 @@ fn tile_rect(
             behind += 1;
             continue;
         }
-        if !(z > NEAR_M) {
+        if z.is_nan() || z <= NEAR_M {
             return whole;
         }
         // A point at depth z seen through (col, row) has
