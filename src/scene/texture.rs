@@ -9,6 +9,11 @@ pub const WAVES: usize = 10;
 // `pattern_fast` sums the ten waves as a fixed tree.
 const _: () = assert!(WAVES == 10);
 
+/// Waves padded with zero ones to whole AVX2 vectors: a ten-lane loop ends in
+/// a masked store, microcoded on AMD and a failed store-to-load forward when
+/// the sum reads it back. The padding lanes are computed and never summed.
+const LANES: usize = 12;
+
 /// Adding then subtracting 1.5·2⁵² rounds an f64 of magnitude below 2⁵¹ to the
 /// nearest integer: branch-free, vectorisable, and without the libm `floor`
 /// call that baseline x86-64 (no SSE4.1 `roundpd`) would make.
@@ -39,8 +44,8 @@ pub struct Texture {
     waves: [([f64; 3], f64); WAVES],
     /// The same waves in cycles instead of radians (`f·direction`, phase/2π),
     /// one array per component so the dot products vectorise.
-    cycles_k: [[f64; WAVES]; 3],
-    cycles_phase: [f64; WAVES],
+    cycles_k: [[f64; LANES]; 3],
+    cycles_phase: [f64; LANES],
     /// Beyond this coordinate magnitude (metres) a wave's argument could leave
     /// the range where [`ROUND`] works; such points take the exact sines.
     fast_limit_m: f64,
@@ -70,8 +75,15 @@ impl Texture {
             ([k * r * a.cos(), k * r * a.sin(), k * z], phase)
         });
         let per_rad = 1.0 / std::f64::consts::TAU;
-        let cycles_k = std::array::from_fn(|c| std::array::from_fn(|j| waves[j].0[c] * per_rad));
-        let cycles_phase = std::array::from_fn(|j| waves[j].1 * per_rad);
+        // Lanes past the ten waves stay zero.
+        let mut cycles_k = [[0.0; LANES]; 3];
+        let mut cycles_phase = [0.0; LANES];
+        for (j, (k, phase)) in waves.iter().enumerate() {
+            for (c, kc) in k.iter().enumerate() {
+                cycles_k[c][j] = kc * per_rad;
+            }
+            cycles_phase[j] = phase * per_rad;
+        }
         // |argument| ≤ |k|₁·max|p| + 1 stays below 2⁵⁰ < 2⁵¹.
         let k1 = (0..WAVES)
             .map(|j| (0..3).map(|c| f64::abs(cycles_k[c][j])).sum::<f64>())
@@ -135,8 +147,8 @@ impl Texture {
     #[inline(always)]
     fn polynomial_waves(&self, p: [f64; 3]) -> f64 {
         let [kx, ky, kz] = &self.cycles_k;
-        let mut w = [0.0; WAVES];
-        for j in 0..WAVES {
+        let mut w = [0.0; LANES];
+        for j in 0..LANES {
             // The argument in cycles, then its offset from the nearest whole
             // cycle (r in [-1/2, 1/2]), then folded to |q| ≤ 1/4 through
             // sin(2π·r) = sin(2π·(±1/2 − r)).
