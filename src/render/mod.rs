@@ -3,9 +3,14 @@
 //! `+inf` for sky) for any pose and intrinsics. Deterministic; parallel over
 //! rows. Camera convention as in `crate::synth`: optical axis `(sin φ, 0, −cos φ)`,
 //! along-track image axis (columns) `(cos φ, 0, sin φ)`, across (rows) `(0, −1, 0)`.
+//! Invariant: [`render`] finds the same nearest surface, with the same depth
+//! bits, as [`trace`] over the whole scene ([`render_reference`] is that).
+
+mod bins;
 
 use crate::core::{DepthData, DepthImage, Intrinsics};
 use crate::scene::{Scene, Texture};
+use bins::Bins;
 use rayon::prelude::*;
 
 /// Where the camera is and how it looks.
@@ -32,15 +37,67 @@ impl Camera {
     pub fn ray(&self, col: f64, row: f64) -> [f64; 3] {
         let (cx, cy) = self.intrinsics.principal_px();
         let f = self.intrinsics.focal_px();
-        let x = (col - cx) / f;
-        let y = (row - cy) / f;
         let (a, u, v) = self.basis();
-        [
-            a[0] + x * u[0] + y * v[0],
-            a[1] + x * u[1] + y * v[1],
-            a[2] + x * u[2] + y * v[2],
-        ]
+        direction(a, u, v, (col - cx) / f, (row - cy) / f)
     }
+}
+
+/// `a + x·u + y·v`, the one formula every camera ray goes through, so rays
+/// built from precomputed parts have the same bits as [`Camera::ray`]'s.
+#[inline]
+fn direction(a: [f64; 3], u: [f64; 3], v: [f64; 3], x: f64, y: f64) -> [f64; 3] {
+    [
+        a[0] + x * u[0] + y * v[0],
+        a[1] + x * u[1] + y * v[1],
+        a[2] + x * u[2] + y * v[2],
+    ]
+}
+
+/// A [`Camera`] unpacked once per frame (basis, principal point, focal
+/// length), instead of once per ray.
+pub(crate) struct Pinhole {
+    pub o: [f64; 3],
+    pub a: [f64; 3],
+    pub u: [f64; 3],
+    pub v: [f64; 3],
+    pub cx: f64,
+    pub cy: f64,
+    pub f: f64,
+    pub width: usize,
+    pub height: usize,
+}
+
+impl Pinhole {
+    fn new(camera: &Camera) -> Pinhole {
+        let (a, u, v) = camera.basis();
+        let (cx, cy) = camera.intrinsics.principal_px();
+        Pinhole {
+            o: camera.position_m,
+            a,
+            u,
+            v,
+            cx,
+            cy,
+            f: camera.intrinsics.focal_px(),
+            width: camera.intrinsics.width(),
+            height: camera.intrinsics.height(),
+        }
+    }
+
+    /// `x` of [`Camera::ray`] for each of the `n` sample columns of each pixel
+    /// (`n·width` values; the sample `sx` of pixel `i` at `i·n + sx`).
+    fn sample_x(&self, n: usize) -> Vec<f64> {
+        (0..self.width * n)
+            .map(|k| (sample_pos(k / n, k % n, n) - self.cx) / self.f)
+            .collect()
+    }
+}
+
+/// Continuous image position of sample `s` of `n` along one axis of pixel `i`
+/// (for odd `n` the middle sample is exactly the pixel centre `i + 0.5`).
+#[inline]
+fn sample_pos(i: usize, s: usize, n: usize) -> f64 {
+    i as f64 + (s as f64 + 0.5) / n as f64
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -232,70 +289,184 @@ fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
-/// The nearest hit of the ray `o + t·d`, `t > 0`.
-pub fn trace<'a>(scene: &'a Scene, o: [f64; 3], d: [f64; 3]) -> Option<Hit<'a>> {
-    let mut best: Option<Hit<'a>> = None;
+/// Which surface a ray met (the hit's normal and texture are derived from it
+/// only when shading needs them).
+#[derive(Debug, Clone, Copy)]
+enum Surface {
+    Ground,
+    /// Box index and the axis of the entered face.
+    Box(usize, usize),
+    Ellipsoid(usize),
+}
+
+/// The nearest surface over the ground and the primitives `prims` (box
+/// indices below `scene.boxes.len()`, then ellipsoids after them), which must
+/// come in ascending order: a later primitive replaces the best hit only when
+/// strictly nearer, so ties go to the first in scene order.
+#[inline]
+fn nearest(
+    scene: &Scene,
+    prims: impl Iterator<Item = usize>,
+    o: [f64; 3],
+    d: [f64; 3],
+) -> Option<(f64, Surface)> {
+    let mut best: Option<(f64, Surface)> = None;
     if let Some(g) = &scene.ground {
         if d[2] < 0.0 && o[2] > g.z_m {
-            best = Some(Hit {
-                t: (g.z_m - o[2]) / d[2],
-                normal: [0.0, 0.0, 1.0],
-                texture: &g.texture,
-            });
+            best = Some(((g.z_m - o[2]) / d[2], Surface::Ground));
         }
     }
-    for b in &scene.boxes {
-        if let Some((t, axis)) = ray_box(b.min_m, b.max_m, o, d) {
-            if best.is_none_or(|h| t < h.t) {
-                let mut normal = [0.0; 3];
-                normal[axis] = -d[axis].signum();
-                let texture = if axis == 2 && normal[2] > 0.0 {
-                    &b.roof
-                } else {
-                    &b.texture
-                };
-                best = Some(Hit { t, normal, texture });
-            }
-        }
-    }
-    for e in &scene.ellipsoids {
-        if let Some(t) = ray_ellipsoid(e.centre_m, e.radii_m, o, d) {
-            if best.is_none_or(|h| t < h.t) {
-                let p = [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]];
-                let mut n = [0.0; 3];
-                for k in 0..3 {
-                    n[k] = (p[k] - e.centre_m[k]) / (e.radii_m[k] * e.radii_m[k]);
+    let boxes = scene.boxes.len();
+    for p in prims {
+        if p < boxes {
+            let b = &scene.boxes[p];
+            if let Some((t, axis)) = ray_box(b.min_m, b.max_m, o, d) {
+                if best.is_none_or(|h| t < h.0) {
+                    best = Some((t, Surface::Box(p, axis)));
                 }
-                let l = dot(n, n).sqrt();
-                best = Some(Hit {
-                    t,
-                    normal: [n[0] / l, n[1] / l, n[2] / l],
-                    texture: &e.texture,
-                });
+            }
+        } else {
+            let e = &scene.ellipsoids[p - boxes];
+            if let Some(t) = ray_ellipsoid(e.centre_m, e.radii_m, o, d) {
+                if best.is_none_or(|h| t < h.0) {
+                    best = Some((t, Surface::Ellipsoid(p - boxes)));
+                }
             }
         }
     }
     best
 }
 
-/// Fixed sun: walls, roofs and crowns shade differently, as in daylight.
-const SUN: [f64; 3] = [0.37139068, 0.55708601, 0.74278135];
-
+/// Normal and texture of the surface found by [`nearest`] at parameter `t`.
 #[inline]
-fn shade(scene: &Scene, o: [f64; 3], d: [f64; 3]) -> [f32; 3] {
-    match trace(scene, o, d) {
-        None => scene.sky_rgb,
-        Some(h) => {
-            let p = [o[0] + h.t * d[0], o[1] + h.t * d[1], o[2] + h.t * d[2]];
-            let a = h.texture.albedo(p);
-            let l = (0.45 + 0.55 * dot(h.normal, SUN).max(0.0)) as f32;
-            [a[0] * l, a[1] * l, a[2] * l]
+fn hit_of(scene: &Scene, surface: Surface, t: f64, o: [f64; 3], d: [f64; 3]) -> Hit<'_> {
+    match surface {
+        Surface::Ground => Hit {
+            t,
+            normal: [0.0, 0.0, 1.0],
+            texture: &scene
+                .ground
+                .as_ref()
+                .expect("a ground hit has a ground")
+                .texture,
+        },
+        Surface::Box(i, axis) => {
+            let b = &scene.boxes[i];
+            let mut normal = [0.0; 3];
+            normal[axis] = -d[axis].signum();
+            let texture = if axis == 2 && normal[2] > 0.0 {
+                &b.roof
+            } else {
+                &b.texture
+            };
+            Hit { t, normal, texture }
+        }
+        Surface::Ellipsoid(i) => {
+            let e = &scene.ellipsoids[i];
+            let p = [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]];
+            let mut n = [0.0; 3];
+            for k in 0..3 {
+                n[k] = (p[k] - e.centre_m[k]) / (e.radii_m[k] * e.radii_m[k]);
+            }
+            let l = dot(n, n).sqrt();
+            Hit {
+                t,
+                normal: [n[0] / l, n[1] / l, n[2] / l],
+                texture: &e.texture,
+            }
         }
     }
 }
 
-/// Renders colour and depth of `scene` from `camera`.
+/// The nearest hit of the ray `o + t·d`, `t > 0`, testing every primitive:
+/// the definition the binned renderer is held to.
+pub fn trace<'a>(scene: &'a Scene, o: [f64; 3], d: [f64; 3]) -> Option<Hit<'a>> {
+    let all = 0..scene.boxes.len() + scene.ellipsoids.len();
+    nearest(scene, all, o, d).map(|(t, s)| hit_of(scene, s, t, o, d))
+}
+
+/// Fixed sun: walls, roofs and crowns shade differently, as in daylight.
+const SUN: [f64; 3] = [0.37139068, 0.55708601, 0.74278135];
+
+#[inline]
+fn lit(albedo: [f32; 3], normal: [f64; 3]) -> [f32; 3] {
+    let l = (0.45 + 0.55 * dot(normal, SUN).max(0.0)) as f32;
+    [albedo[0] * l, albedo[1] * l, albedo[2] * l]
+}
+
+/// Colour of a traced ray (sky when it met nothing), polynomial-sine texture.
+#[inline]
+fn shade(scene: &Scene, found: Option<(f64, Surface)>, o: [f64; 3], d: [f64; 3]) -> [f32; 3] {
+    match found {
+        None => scene.sky_rgb,
+        Some((t, s)) => {
+            let h = hit_of(scene, s, t, o, d);
+            let p = [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]];
+            lit(h.texture.albedo(p), h.normal)
+        }
+    }
+}
+
+/// Renders colour and depth of `scene` from `camera`: each ray is tested only
+/// against the primitives binned to its tile, and for odd supersampling the
+/// middle sample of each pixel is the depth ray, traced once for both.
 pub fn render(scene: &Scene, camera: &Camera, opts: &RenderOptions) -> Frame {
+    let cam = Pinhole::new(camera);
+    let bins = Bins::new(scene, &cam);
+    let (w, h) = (cam.width, cam.height);
+    let n = opts.supersample.max(1);
+    // The middle sample, if there is one, has the pixel centre's coordinates.
+    let mid = (n % 2 == 1).then_some(n / 2);
+    let xs = cam.sample_x(n);
+    let xc = cam.sample_x(1);
+    let o = cam.o;
+    let mut rgb = vec![[0f32; 3]; w * h];
+    let mut depth_m = vec![0f32; w * h];
+    let inv = 1.0 / (n * n) as f32;
+    rgb.par_chunks_mut(w)
+        .zip(depth_m.par_chunks_mut(w))
+        .enumerate()
+        .for_each(|(r, (rgb_row, depth_row))| {
+            let yc = (sample_pos(r, 0, 1) - cam.cy) / cam.f;
+            let ys: Vec<f64> = (0..n)
+                .map(|sy| (sample_pos(r, sy, n) - cam.cy) / cam.f)
+                .collect();
+            for i in 0..w {
+                let list = bins.at(i, r);
+                let prims = || list.iter().map(|&p| p as usize);
+                let dc = direction(cam.a, cam.u, cam.v, xc[i], yc);
+                let centre = nearest(scene, prims(), o, dc);
+                depth_row[i] = centre.map_or(f32::INFINITY, |c| c.0 as f32);
+                let mut acc = [0f32; 3];
+                for (sy, &y) in ys.iter().enumerate() {
+                    for sx in 0..n {
+                        let (d, found) = if mid == Some(sx) && mid == Some(sy) {
+                            (dc, centre)
+                        } else {
+                            let d = direction(cam.a, cam.u, cam.v, xs[i * n + sx], y);
+                            (d, nearest(scene, prims(), o, d))
+                        };
+                        let c = shade(scene, found, o, d);
+                        acc[0] += c[0];
+                        acc[1] += c[1];
+                        acc[2] += c[2];
+                    }
+                }
+                rgb_row[i] = [acc[0] * inv, acc[1] * inv, acc[2] * inv];
+            }
+        });
+    Frame {
+        width: w,
+        height: h,
+        rgb,
+        depth_m,
+    }
+}
+
+/// [`render`] by its definition: every ray through [`trace`] against every
+/// primitive, textures from exact sines. Slow; the fast renderer's depth must
+/// equal this one's bit for bit and its colour within the polynomial sines' error.
+pub fn render_reference(scene: &Scene, camera: &Camera, opts: &RenderOptions) -> Frame {
     let w = camera.intrinsics.width();
     let h = camera.intrinsics.height();
     let n = opts.supersample.max(1);
@@ -313,9 +484,14 @@ pub fn render(scene: &Scene, camera: &Camera, opts: &RenderOptions) -> Frame {
                 let mut acc = [0f32; 3];
                 for sy in 0..n {
                     for sx in 0..n {
-                        let col = i as f64 + (sx as f64 + 0.5) / n as f64;
-                        let row = r as f64 + (sy as f64 + 0.5) / n as f64;
-                        let c = shade(scene, o, camera.ray(col, row));
+                        let d = camera.ray(sample_pos(i, sx, n), sample_pos(r, sy, n));
+                        let c = match trace(scene, o, d) {
+                            None => scene.sky_rgb,
+                            Some(h) => {
+                                let p = [o[0] + h.t * d[0], o[1] + h.t * d[1], o[2] + h.t * d[2]];
+                                lit(h.texture.albedo_exact(p), h.normal)
+                            }
+                        };
                         acc[0] += c[0];
                         acc[1] += c[1];
                         acc[2] += c[2];
@@ -335,13 +511,17 @@ pub fn render(scene: &Scene, camera: &Camera, opts: &RenderOptions) -> Frame {
 /// Depth only (metres along the optical axis at each pixel centre, `+inf` for
 /// sky): what a depth camera sees, without the cost of shading.
 pub fn render_depth(scene: &Scene, camera: &Camera) -> Vec<f32> {
-    let w = camera.intrinsics.width();
-    let o = camera.position_m;
-    let mut depth_m = vec![0f32; w * camera.intrinsics.height()];
+    let cam = Pinhole::new(camera);
+    let bins = Bins::new(scene, &cam);
+    let w = cam.width;
+    let xc = cam.sample_x(1);
+    let mut depth_m = vec![0f32; w * cam.height];
     depth_m.par_chunks_mut(w).enumerate().for_each(|(r, row)| {
-        for (i, d) in row.iter_mut().enumerate() {
-            let ray = camera.ray(i as f64 + 0.5, r as f64 + 0.5);
-            *d = trace(scene, o, ray).map_or(f32::INFINITY, |h| h.t as f32);
+        let y = (sample_pos(r, 0, 1) - cam.cy) / cam.f;
+        for (i, out) in row.iter_mut().enumerate() {
+            let d = direction(cam.a, cam.u, cam.v, xc[i], y);
+            let prims = bins.at(i, r).iter().map(|&p| p as usize);
+            *out = nearest(scene, prims, cam.o, d).map_or(f32::INFINITY, |c| c.0 as f32);
         }
     });
     depth_m
@@ -373,4 +553,22 @@ pub fn write_png(
     w.write_image_data(rgb8).map_err(std::io::Error::other)?;
     w.finish().map_err(std::io::Error::other)?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_middle_sample_of_an_odd_grid_is_the_pixel_centre_bit_for_bit() {
+        for n in [1usize, 3, 5, 7, 9, 11] {
+            for i in [0usize, 1, 319, 640, 8191] {
+                assert_eq!(
+                    sample_pos(i, n / 2, n).to_bits(),
+                    (i as f64 + 0.5).to_bits(),
+                    "n {n} i {i}"
+                );
+            }
+        }
+    }
 }
