@@ -14,7 +14,7 @@ use alfd::capture::{
     CaptureRecord, ExifGps,
 };
 use alfd::config::Config;
-use alfd::core::allowlist;
+use alfd::core::allowlist::{self, Trust};
 use alfd::core::{DepthData, DepthImage};
 use alfd::daemon::camera::{CameraInfo, CameraProtocol};
 use alfd::depthio::{
@@ -287,7 +287,19 @@ fn digest(h: MavHeader, m: &MavMessage, camera: &mut CameraProtocol) {
         let p = [
             c.param1, c.param2, c.param3, c.param4, c.param5, c.param6, c.param7,
         ];
-        for r in camera.on_command(c.command as u32, p, h.system_id as u8, h.component_id, 0) {
+        let trust = if h.system_id == 1 {
+            Trust::Accepted
+        } else {
+            Trust::Foreign
+        };
+        for r in camera.on_command(
+            c.command as u32,
+            p,
+            h.system_id as u8,
+            h.component_id,
+            trust,
+            0,
+        ) {
             let cmd = match &r {
                 MavMessage::COMMAND_LONG(c) => Some(c.command as u32),
                 _ => None,

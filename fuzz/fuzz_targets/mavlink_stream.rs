@@ -24,7 +24,7 @@ use std::pin::{pin, Pin};
 use std::task::{Context, Poll, Waker};
 
 use alfd::capture::tlog;
-use alfd::core::allowlist;
+use alfd::core::allowlist::{self, Trust};
 use alfd::daemon::camera::{CameraInfo, CameraProtocol};
 use alfd::link::{LinkConfig, Reaction, Tracker};
 use libfuzzer_sys::fuzz_target;
@@ -260,6 +260,11 @@ fn digest(h: MavHeader, msg: &MavMessage, camera: &mut CameraProtocol) {
             params,
             h.system_id as u8,
             h.component_id,
+            if h.system_id == 1 {
+                Trust::Accepted
+            } else {
+                Trust::Foreign
+            },
             1_000,
         );
         for r in &replies {

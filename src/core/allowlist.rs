@@ -1,6 +1,6 @@
-//! What alfd may put on the flight controller's link: camera, status and time messages, and
-//! COMMAND_LONG only for telemetry-rate and camera commands. Everything else is refused here,
-//! in one place, so no flight-control message or command can leave the daemon.
+//! What alfd may put on the flight controller's link (camera, status and time messages, and
+//! COMMAND_LONG only for telemetry-rate and camera commands), refused here in one place; and whom
+//! it obeys: read-only camera requests from any system, every other command only from accepted ones.
 
 /// Message ids alfd may send (MAVLink common dialect).
 pub const ALLOWED_MESSAGES: &[(u32, &str)] = &[
@@ -31,6 +31,34 @@ pub const ALLOWED_COMMANDS: &[(u32, &str)] = &[
 
 /// COMMAND_LONG's message id.
 pub const COMMAND_LONG_ID: u32 = 76;
+
+/// Commands that only ask the camera for a message and change nothing: answered whoever
+/// asks, so a ground station outside `accept_system_ids` (MAVSDK speaks as system 245) can
+/// still discover the camera and read its state.
+pub const READ_ONLY_COMMANDS: &[(u32, &str)] = &[
+    (512, "MAV_CMD_REQUEST_MESSAGE"),
+    (521, "MAV_CMD_REQUEST_CAMERA_INFORMATION"),
+    (522, "MAV_CMD_REQUEST_CAMERA_SETTINGS"),
+    (525, "MAV_CMD_REQUEST_STORAGE_INFORMATION"),
+    (527, "MAV_CMD_REQUEST_CAMERA_CAPTURE_STATUS"),
+    (2002, "MAV_CMD_REQUEST_CAMERA_IMAGE_CAPTURE"),
+];
+
+/// Who sent a received command, as far as obeying it goes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Trust {
+    /// A system in `accept_system_ids`.
+    Accepted,
+    /// Any other system on the link.
+    Foreign,
+}
+
+/// Whether a command received from `from` may be acted on. A foreign system gets only the
+/// read-only requests; anything else from it is to be refused (COMMAND_ACK DENIED, not
+/// silence, so the sender knows).
+pub fn may_obey(command: u32, from: Trust) -> bool {
+    from == Trust::Accepted || READ_ONLY_COMMANDS.iter().any(|(id, _)| *id == command)
+}
 
 /// Why a message may not be sent.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -72,6 +100,20 @@ mod tests {
         assert_eq!(may_send(76, None), Err(Refusal::Command(u32::MAX)));
         assert_eq!(may_send(76, Some(511)), Ok(()));
         assert_eq!(may_send(0, None), Ok(()));
+    }
+
+    #[test]
+    fn foreign_systems_get_requests_only() {
+        for (cmd, name) in READ_ONLY_COMMANDS {
+            assert!(may_obey(*cmd, Trust::Foreign), "{name}");
+            assert!(may_obey(*cmd, Trust::Accepted), "{name}");
+        }
+        // Captures, mode, storage format, trigger distance, digicam, message rates, arming,
+        // and an id outside the dialect: accepted systems only.
+        for cmd in [2000, 2001, 530, 526, 206, 203, 511, 400, 65_000, u32::MAX] {
+            assert!(!may_obey(cmd, Trust::Foreign), "{cmd}");
+            assert!(may_obey(cmd, Trust::Accepted), "{cmd}");
+        }
     }
 
     #[test]

@@ -6,6 +6,7 @@
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicU16, Ordering};
 
+use crate::core::allowlist::{may_obey, Trust};
 use glam::DQuat;
 use mavlink::dialects::common::{
     CameraCapFlags, CameraMode, MavBool, MavCmd, MavMessage, MavResult, MavSeverity, StorageStatus,
@@ -232,6 +233,10 @@ impl CameraProtocol {
     /// Answer a COMMAND_LONG addressed to us: a COMMAND_ACK to the sender, then the requested
     /// message when the ACK is ACCEPTED and the command asks for one.
     ///
+    /// A sender outside `accept_system_ids` (`Trust::Foreign`) is answered the read-only
+    /// requests like anyone else; any other command from it is DENIED
+    /// (`crate::core::allowlist::may_obey`), never ignored, so its ground station says why.
+    ///
     /// Requests (REQUEST_MESSAGE 259–263 and the legacy 521/522/525/527/2002) are served;
     /// SET_CAMERA_MODE accepts image mode only. IMAGE_START/STOP_CAPTURE and STORAGE_FORMAT are
     /// DENIED, not UNSUPPORTED: the camera does capture images (CAPTURE_IMAGE is advertised),
@@ -245,12 +250,17 @@ impl CameraProtocol {
         params: [f32; 7],
         from_system: u8,
         from_component: u8,
+        trust: Trust,
         time_boot_ms: u32,
     ) -> Vec<MavMessage> {
         let Some(command) = mav_cmd(cmd) else {
             return Vec::new();
         };
-        let (result, reply) = self.answer(command, &params, time_boot_ms);
+        let (result, reply) = if may_obey(cmd, trust) {
+            self.answer(command, &params, time_boot_ms)
+        } else {
+            denied()
+        };
         let mut out = Vec::with_capacity(2);
         out.push(MavMessage::COMMAND_ACK(COMMAND_ACK_DATA {
             command,
@@ -642,7 +652,7 @@ mod tests {
     }
 
     fn cmd(p: &mut CameraProtocol, c: u32, params: [f32; 7]) -> Vec<MavMessage> {
-        p.on_command(c, params, GCS.0, GCS.1, 5_000)
+        p.on_command(c, params, GCS.0, GCS.1, Trust::Accepted, 5_000)
     }
 
     fn request(p: &mut CameraProtocol, msg: f32, param2: f32) -> Vec<MavMessage> {
@@ -991,6 +1001,54 @@ mod tests {
     }
 
     #[test]
+    fn foreign_systems_read_but_do_not_command() {
+        let mut p = proto();
+        p.image_captured(&capture(0));
+        let foreign = |p: &mut CameraProtocol, c: u32, params: [f32; 7]| {
+            p.on_command(c, params, GCS.0, GCS.1, Trust::Foreign, 5_000)
+        };
+        // Every read-only request gets what an accepted system gets: the same ACK, to the
+        // foreign sender, and the same message.
+        let mut requests: Vec<(u32, [f32; 7])> = [259.0, 260.0, 261.0, 262.0]
+            .map(|m| (512, [m, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]))
+            .to_vec();
+        requests.push((512, [263.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]));
+        for c in [521, 522, 525, 527, 2002] {
+            requests.push((c, [0.0; 7]));
+        }
+        for (c, params) in requests {
+            let theirs = foreign(&mut p, c, params);
+            assert_eq!(theirs.len(), 2, "{c} {params:?}");
+            assert_eq!(ack(&theirs[0]).1, MavResult::MAV_RESULT_ACCEPTED);
+            // Compared on the wire: CAMERA_SETTINGS carries NaN, never equal to itself.
+            let bytes = |out: &[MavMessage]| out.iter().map(wire).collect::<Vec<_>>();
+            assert_eq!(
+                bytes(&theirs),
+                bytes(&cmd(&mut p, c, params)),
+                "{c} {params:?}"
+            );
+        }
+        // Commands that change something are DENIED, with an ACK: captures, mode (even
+        // image mode, which an accepted system gets), storage format, trigger distance,
+        // digicam; and what the camera would call UNSUPPORTED (video, arming).
+        let image_mode = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+        assert_eq!(
+            ack(&cmd(&mut p, 530, image_mode)[0]).1,
+            MavResult::MAV_RESULT_ACCEPTED
+        );
+        for c in [530, 2000, 2001, 526, 206, 203, 2500, 400] {
+            let out = foreign(&mut p, c, image_mode);
+            assert_eq!(out.len(), 1, "{c}");
+            assert_eq!(ack(&out[0]).1, MavResult::MAV_RESULT_DENIED, "{c}");
+            assert_eq!(ack(&out[0]).0 as u32, c);
+            wire(&out[0]);
+        }
+        // A command outside the dialect still cannot be named in an ACK.
+        assert!(foreign(&mut p, 65_000, [0.0; 7]).is_empty());
+        assert_eq!(p.image_count(), 1);
+    }
+
+    #[test]
     fn nan_params_get_a_clean_ack() {
         let mut p = proto();
         for c in [512, 521, 522, 525, 527, 530, 2000, 2001, 2002, 526, 511] {
@@ -1019,7 +1077,8 @@ mod tests {
         ) {
             let mut p = proto();
             p.image_captured(&capture(0));
-            let out = p.on_command(c, bits.map(f32::from_bits), 1, 2, 0);
+            let trust = if c % 2 == 0 { Trust::Accepted } else { Trust::Foreign };
+            let out = p.on_command(c, bits.map(f32::from_bits), 1, 2, trust, 0);
             if let Some(first) = out.first() {
                 let MavMessage::COMMAND_ACK(a) = first else { panic!("{first:?}") };
                 prop_assert_eq!(a.command as u32, c);

@@ -948,11 +948,12 @@ impl Coordinator {
                 component_id,
                 command,
                 params,
+                trust,
             } => {
                 let boot_ms = self.boot_ms_now().await;
-                for m in self
-                    .camera
-                    .on_command(command, params, system_id, component_id, boot_ms)
+                for m in
+                    self.camera
+                        .on_command(command, params, system_id, component_id, trust, boot_ms)
                 {
                     let _ = self.link.send(m).await;
                 }

@@ -13,6 +13,7 @@ pub use config::{LinkConfig, LinkConfigError, RawLinkConfig};
 pub use state::{PoseQueryError, Reaction, Tracker};
 pub use task::{new, Link, LinkError, TapFrame};
 
+use crate::core::allowlist::Trust;
 use crate::core::geo::Geodetic;
 use crate::core::pose::Pose;
 use mavlink::dialects::common::MavMessage;
@@ -49,7 +50,10 @@ pub struct LinkHealth {
     pub parse_errors: u64,
     /// Frames missing by sequence number (dropped or failing CRC).
     pub seq_gaps: u64,
+    /// Messages from systems not in `accept_system_ids`, other than commands addressed to us.
     pub foreign_ignored: u64,
+    /// COMMAND_LONGs addressed to us from systems not in `accept_system_ids`.
+    pub foreign_commands: u64,
     pub autopilot_heartbeats: u64,
     pub last_rx_mono_ns: u64,
     pub last_position_rx_mono_ns: u64,
@@ -67,6 +71,9 @@ pub struct LinkHealth {
     pub timesync_resets: u32,
     pub timesync_outliers: u64,
     pub timesync_discarded: u64,
+    /// TIMESYNC replies not from the autopilot the link follows, or addressed to someone else:
+    /// not used (a ground station may answer the requests the autopilot forwards).
+    pub timesync_foreign: u64,
     pub reboots: u32,
     pub glitch_active: bool,
     pub glitches: u64,
@@ -102,12 +109,14 @@ pub enum LinkEvent {
         /// MAV_RESULT (0 = accepted).
         result: u8,
     },
-    /// A COMMAND_LONG addressed to us from an accepted system.
+    /// A COMMAND_LONG addressed to us, from any system: `trust` says whether its sender is in
+    /// `accept_system_ids` (a foreign one may only read, `core::allowlist::may_obey`).
     Command {
         system_id: u8,
         component_id: u8,
         command: u32,
         params: [f32; 7],
+        trust: Trust,
     },
 }
 

@@ -4,6 +4,7 @@
 
 use super::config::LinkConfig;
 use super::{LinkEvent, LinkHealth, VehicleState};
+use crate::core::allowlist::Trust;
 use crate::core::geo::{Geodetic, LocalFrame};
 use crate::core::glitch::{GlitchConfig, GlitchGate, Verdict};
 use crate::core::pose::{
@@ -141,7 +142,15 @@ impl Tracker {
             .iter()
             .any(|id| u32::from(*id) == sysid)
         {
-            self.health.foreign_ignored += 1;
+            // Any system may ask the camera for its state (a ground station the operator did
+            // not list); the camera protocol refuses its other commands with DENIED.
+            match self.command_for_us(h, msg, Trust::Foreign) {
+                Some(ev) => {
+                    self.health.foreign_commands += 1;
+                    out.push(Reaction::Event(ev));
+                }
+                None => self.health.foreign_ignored += 1,
+            }
             return out;
         }
         self.health.messages_rx += 1;
@@ -149,7 +158,11 @@ impl Tracker {
         if let Some(last) = self.seqs.insert((sysid, h.component_id), h.sequence) {
             self.health.seq_gaps += u64::from(h.sequence.wrapping_sub(last).wrapping_sub(1));
         }
-        let from_autopilot = h.component_id == self.cfg.autopilot_component_id;
+        if let Some(ev) = self.command_for_us(h, msg, Trust::Accepted) {
+            out.push(Reaction::Event(ev));
+            return out;
+        }
+        let from_autopilot = self.is_autopilot(sysid, h.component_id);
         match msg {
             MavMessage::HEARTBEAT(hb) if from_autopilot => {
                 if self.autopilot.is_none() {
@@ -175,6 +188,15 @@ impl Tracker {
                 ))));
             }
             MavMessage::TIMESYNC(t) => {
+                // Only the autopilot's own answer, addressed to us (target fields 0 when the
+                // sender leaves the extension out): ArduPilot forwards our requests to its
+                // ground stations, and one that answers them must not move our clock.
+                let for_us = (t.target_system == 0 || t.target_system == self.cfg.system_id)
+                    && (t.target_component == 0 || t.target_component == self.cfg.component_id);
+                if !from_autopilot || !for_us {
+                    self.health.timesync_foreign += 1;
+                    return out;
+                }
                 let ts1 = t.ts1 as u64;
                 let Some(i) = self.outstanding.iter().position(|s| *s == ts1) else {
                     return out;
@@ -235,7 +257,8 @@ impl Tracker {
                 }
             }
             MavMessage::COMMAND_ACK(a)
-                if a.command == MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL
+                if from_autopilot
+                    && a.command == MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL
                     && a.result == MavResult::MAV_RESULT_ACCEPTED =>
             {
                 self.pending_rates.pop_front();
@@ -262,22 +285,35 @@ impl Tracker {
                     result: a.result as u8,
                 }));
             }
-            MavMessage::COMMAND_LONG(c)
-                if c.target_system == self.cfg.system_id
-                    && (c.target_component == self.cfg.component_id || c.target_component == 0) =>
-            {
-                out.push(Reaction::Event(LinkEvent::Command {
-                    system_id: sysid as u8,
-                    component_id: h.component_id,
-                    command: c.command as u32,
-                    params: [
-                        c.param1, c.param2, c.param3, c.param4, c.param5, c.param6, c.param7,
-                    ],
-                }));
-            }
             _ => {}
         }
         out
+    }
+
+    /// The autopilot the link follows: `autopilot_component_id` on the system whose HEARTBEAT
+    /// from that component came first (before any, on any accepted system). Once it is known,
+    /// nothing from another system, a ground station's included, counts as the autopilot's.
+    fn is_autopilot(&self, sysid: u32, component_id: u8) -> bool {
+        component_id == self.cfg.autopilot_component_id
+            && self.autopilot.is_none_or(|(s, _)| u32::from(s) == sysid)
+    }
+
+    /// A COMMAND_LONG addressed to our component (or to all of our system's), as an event.
+    fn command_for_us(&self, h: &MavHeader, msg: &MavMessage, trust: Trust) -> Option<LinkEvent> {
+        let MavMessage::COMMAND_LONG(c) = msg else {
+            return None;
+        };
+        let ours = c.target_system == self.cfg.system_id
+            && (c.target_component == self.cfg.component_id || c.target_component == 0);
+        ours.then(|| LinkEvent::Command {
+            system_id: h.system_id as u8,
+            component_id: h.component_id,
+            command: c.command as u32,
+            params: [
+                c.param1, c.param2, c.param3, c.param4, c.param5, c.param6, c.param7,
+            ],
+            trust,
+        })
     }
 
     fn on_attitude(&mut self, boot_ms: u32, q: DQuat, rates: DVec3, out: &mut Vec<Reaction>) {
@@ -396,7 +432,7 @@ mod tests {
     }
 
     #[test]
-    fn commands_only_from_accepted_systems() {
+    fn commands_from_any_system_say_whether_it_is_accepted() {
         let mut t = Tracker::new(LinkConfig::for_address("udpin:127.0.0.1:0"));
         let (h, m) = command(1);
         let got = t.on_message(&h, &m, 1_000);
@@ -405,12 +441,101 @@ mod tests {
             [Reaction::Event(LinkEvent::Command {
                 system_id: 1,
                 command: 2000,
+                trust: Trust::Accepted,
                 ..
             })]
         ));
-        let (h, m) = command(255);
-        assert!(t.on_message(&h, &m, 2_000).is_empty());
-        assert_eq!(t.health.foreign_ignored, 1);
+        // Not in accept_system_ids ([1]): still passed on, so the camera can answer a
+        // request or refuse the command with DENIED, never silence.
+        let (h, m) = command(245);
+        let got = t.on_message(&h, &m, 2_000);
+        assert!(matches!(
+            got.as_slice(),
+            [Reaction::Event(LinkEvent::Command {
+                system_id: 245,
+                component_id: 190,
+                command: 2000,
+                trust: Trust::Foreign,
+                ..
+            })]
+        ));
+        assert_eq!(t.health.foreign_commands, 1);
+        assert_eq!(t.health.foreign_ignored, 0);
+        assert_eq!(t.health.messages_rx, 1);
+        // Anything else from it is ignored, as is a command for another component.
+        let hb = MavMessage::HEARTBEAT(HEARTBEAT_DATA::default());
+        assert!(t.on_message(&h, &hb, 3_000).is_empty());
+        let MavMessage::COMMAND_LONG(mut c) = m else {
+            unreachable!()
+        };
+        c.target_component = 1;
+        let other = MavMessage::COMMAND_LONG(c);
+        assert!(t.on_message(&h, &other, 4_000).is_empty());
+        assert_eq!(t.health.foreign_ignored, 2);
+        assert_eq!(t.health.foreign_commands, 1);
+    }
+
+    fn header(system_id: u32, component_id: u8) -> MavHeader {
+        MavHeader {
+            system_id,
+            component_id,
+            sequence: 0,
+        }
+    }
+
+    fn timesync_reply(ts1: u64, tc1: i64, target: (u8, u8)) -> MavMessage {
+        MavMessage::TIMESYNC(TIMESYNC_DATA {
+            tc1,
+            ts1: ts1 as i64,
+            target_system: target.0,
+            target_component: target.1,
+        })
+    }
+
+    #[test]
+    fn timesync_answers_only_from_the_autopilot() {
+        let mut cfg = LinkConfig::for_address("udpin:127.0.0.1:0");
+        cfg.accept_system_ids = vec![1, 255];
+        let mut t = Tracker::new(cfg);
+        let hb = MavMessage::HEARTBEAT(HEARTBEAT_DATA::default());
+        t.on_message(&header(1, 1), &hb, 1_000);
+        assert_eq!(t.autopilot, Some((1, 1)));
+        // The autopilot's boot clock reads local time minus 0.5 s; every reply takes 1 ms.
+        let boot = |local_ns: u64| (local_ns - 500_000_000) as i64;
+        for i in 0..5u64 {
+            let sent = 1_000_000_000 + i * 100_000_000;
+            let MavMessage::TIMESYNC(req) = t.timesync_request(sent) else {
+                unreachable!()
+            };
+            assert_eq!((req.target_system, req.target_component), (1, 1));
+            // Forwarded to ground stations, which answer first and with their own clocks:
+            // QGC (255, 190), one on the autopilot's component id, and the autopilot
+            // answering someone else. None of them may be taken for the exchange.
+            for (h, target) in [
+                (header(255, 190), (1, 100)),
+                (header(255, 1), (1, 100)),
+                (header(2, 1), (1, 100)),
+                (header(1, 1), (255, 190)),
+                (header(1, 1), (1, 1)),
+            ] {
+                let wrong = timesync_reply(sent, boot(sent) + 7_000_000_000, target);
+                assert!(t.on_message(&h, &wrong, sent + 800_000).is_empty());
+            }
+            // The autopilot's own (target as sent by older firmware: 0).
+            let right = timesync_reply(sent, boot(sent + 500_000), (0, 0));
+            t.on_message(&header(1, 1), &right, sent + 1_000_000);
+        }
+        assert_eq!(t.health.timesync_foreign, 4 * 5);
+        // System 2 is not accepted at all.
+        assert_eq!(t.health.foreign_ignored, 5);
+        assert!(t.health.synced);
+        assert_eq!(t.health.offset_ns, 500_000_000);
+        assert_eq!(t.health.rtt_min_ns, 1_000_000);
+        assert_eq!(t.sync.local_to_remote(2_000_000_000), Some(1_500_000_000));
+        // A ground station's HEARTBEAT on component 1 does not become the autopilot.
+        t.on_message(&header(255, 1), &hb, 3_000_000_000);
+        assert_eq!(t.autopilot, Some((1, 1)));
+        assert_eq!(t.health.autopilot_heartbeats, 1);
     }
 
     #[test]
