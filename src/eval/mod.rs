@@ -902,23 +902,24 @@ pub fn evaluate_scene(
         // met each before its first failure).
         let mut geo_ok: [Option<f64>; 2] = [None, None];
         let mut geo_failed = [false; 2];
-        for k in ladder(b - a) {
-            // Captures every `k` views from the segment's start, on past its
-            // end while the line has views, so every view of the segment lies
-            // between two captures of the same grid.
+        // Captures every `k` views from the segment's start, on past its end
+        // while the line has views, so every view of the segment lies between
+        // two captures of the same grid: the segment's in-between views.
+        let tasks_at = |k: usize| -> Vec<(usize, usize, usize)> {
             let mut caps: Vec<usize> = (a..n).step_by(k).take_while(|&c| c < b + k).collect();
             if *caps.last().expect("a") < b {
                 caps.push(n - 1);
             }
-            let tasks: Vec<(usize, usize, usize)> = caps
-                .windows(2)
+            caps.windows(2)
                 .flat_map(|w| (w[0] + 1..w[1]).map(move |v| (w[0], w[1], v)))
                 .filter(|&(_, _, v)| v >= a && v <= b)
-                .collect();
-            // The geometry of at most GEO_VIEWS views per interval, evenly
-            // spread and always the middle one: neighbouring dense views are
-            // 4 cm apart, and classifying all of them was most of the run.
-            let geo_tasks: Vec<(usize, usize, usize)> = tasks
+                .collect()
+        };
+        // The geometry of at most GEO_VIEWS views per interval, evenly spread
+        // and always the middle one: neighbouring dense views are 4 cm apart,
+        // and classifying all of them was most of the run.
+        let geo_of = |tasks: &[(usize, usize, usize)]| -> Vec<Geo> {
+            let picked: Vec<(usize, usize, usize)> = tasks
                 .iter()
                 .copied()
                 .filter(|&(i, j, v)| {
@@ -929,10 +930,23 @@ pub fn evaluate_scene(
                         })
                 })
                 .collect();
-            let geos: Vec<Geo> = geo_tasks
+            picked
                 .par_iter()
                 .map(|&(i, j, v)| Geo::of(&truth.classify(&views[v], &views[i], &views[j], false)))
-                .collect();
+                .collect()
+        };
+        let meets_c = |g: &GeoStats, c: usize| {
+            if c == 0 {
+                g.parallax_worst_px.is_none_or(|p| p <= targets.parallax_px)
+            } else {
+                g.unseen_worst <= targets.unseen_fraction_max
+            }
+        };
+        let mut ok_k: [Option<usize>; 2] = [None, None];
+        let mut fail_k: [Option<usize>; 2] = [None, None];
+        for k in ladder(b - a) {
+            let tasks = tasks_at(k);
+            let geos = geo_of(&tasks);
             let q = res.quality_views.min(tasks.len());
             let picked: Vec<(usize, usize, usize)> = (0..q)
                 .map(|t| tasks[(t * (tasks.len() - 1)) / (q - 1).max(1)])
@@ -981,19 +995,14 @@ pub fn evaluate_scene(
                     }
                 }
             }
-            let meets = [
-                point
-                    .geo
-                    .parallax_worst_px
-                    .is_none_or(|p| p <= targets.parallax_px),
-                point.geo.unseen_worst <= targets.unseen_fraction_max,
-            ];
             for c in 0..2 {
                 if !geo_failed[c] {
-                    if meets[c] {
+                    if meets_c(&point.geo, c) {
                         geo_ok[c] = Some(spacing);
+                        ok_k[c] = Some(k);
                     } else {
                         geo_failed[c] = true;
+                        fail_k[c] = Some(k);
                     }
                 }
             }
@@ -1013,19 +1022,43 @@ pub fn evaluate_scene(
                 break;
             }
         }
-        // The target spacing: the largest swept spacing meeting all three.
-        let target_m = match (geo_ok[0], geo_ok[1]) {
-            (Some(p), Some(u)) => {
-                let cap = p.min(u).min(vpp_m.unwrap_or(f64::INFINITY));
-                sweep
-                    .iter()
-                    .map(|sp| sp.spacing_m)
-                    .filter(|&x| x <= cap * (1.0 + 1e-9))
-                    .reduce(f64::max)
+        // Between the last swept spacing meeting a geometric target and the
+        // first failing it, bisection on whole view steps (geometry only), so
+        // the ladder's 1.25× steps do not quantise the empirical spacing.
+        let step = res.view_step_m;
+        for c in 0..2 {
+            if let (Some(mut lo), Some(mut hi)) = (ok_k[c], fail_k[c]) {
+                while hi - lo > 1 {
+                    let mid = (lo + hi) / 2;
+                    if meets_c(&GeoStats::of(geo_of(&tasks_at(mid)).iter()), c) {
+                        lo = mid;
+                    } else {
+                        hi = mid;
+                    }
+                }
+                ok_k[c] = Some(lo);
+                geo_ok[c] = Some(lo as f64 * step);
             }
-            _ => None,
-        };
-        let at_target = target_m.and_then(|t| sweep.iter().find(|sp| sp.spacing_m == t));
+        }
+        // The target spacing: the largest whole number of view steps within
+        // every target (each criterion's empirical spacing, and views per
+        // point), checked on the truth (stepping down should the criteria not
+        // be monotone there).
+        let mut at_target: Option<GeoStats> = None;
+        let mut target_m = None;
+        if let (Some(p), Some(u)) = (ok_k[0], ok_k[1]) {
+            let vpp_k = vpp_m.map_or(usize::MAX, |v| (v / step + 1e-9).floor() as usize);
+            let mut k = p.min(u).min(vpp_k).min(b - a);
+            while k >= 2 {
+                let g = GeoStats::of(geo_of(&tasks_at(k)).iter());
+                if meets_c(&g, 0) && meets_c(&g, 1) {
+                    at_target = Some(g);
+                    target_m = Some(k as f64 * step);
+                    break;
+                }
+                k -= 1;
+            }
+        }
         let seg_est = &estimates[a..=b];
         let seg_truth = SegmentTruth {
             target_m,
@@ -1049,10 +1082,10 @@ pub fn evaluate_scene(
                         .collect(),
                 )
             }),
-            parallax_truth_px: at_target.and_then(|sp| sp.geo.parallax_worst_px),
+            parallax_truth_px: at_target.and_then(|g| g.parallax_worst_px),
             unseen_predicted: target_m
                 .and_then(|t| median(seg_est.iter().map(|e| e.density_per_m * t).collect())),
-            unseen_truth: at_target.map(|sp| sp.geo.unseen_worst),
+            unseen_truth: at_target.map(|g| g.unseen_worst),
             visibility_predicted_m: median(
                 seg_est
                     .iter()
