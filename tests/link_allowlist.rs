@@ -1,16 +1,18 @@
 //! No flight-control command can leave alfd: every message of the common dialect and every
 //! MAV_CMD is offered to the link's send path; only the allow-list's get out, and the simulator
-//! (the other end of the pty) sees nothing else. Also: commands from systems that are not
-//! accepted are ignored.
+//! (the other end of the pty) sees nothing else. Also: nothing but commands is taken from
+//! systems that are not accepted, and TIMESYNC answers only from the autopilot, even when a
+//! ground station on an accepted system answers alfd's requests first.
 
 mod link_support;
 
 use alfd::core::allowlist::{may_send, ALLOWED_COMMANDS, ALLOWED_MESSAGES};
 use alfd::link::SendError;
-use firmware_sim::SimEvent;
+use firmware_sim::{GcsTimesync, SimEvent};
 use link_support::*;
 use mavlink::dialects::common::*;
 use mavlink::{MavlinkVersion, Message};
+use std::time::Duration;
 
 /// Every MAV_CMD value the dialect defines (found by decoding a COMMAND_LONG payload).
 fn all_commands() -> Vec<MavCmd> {
@@ -134,5 +136,36 @@ async fn commands_from_foreign_systems_are_ignored() {
     assert_eq!(h.messages_rx, 0);
     assert_eq!(h.positions_accepted, 0);
     assert!(p.link.state().borrow().is_none());
+    p.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_ground_station_answering_timesync_does_not_move_the_clock() {
+    // A ground station (255, 190) behind the autopilot answers each of alfd's TIMESYNC
+    // requests before the autopilot does, its clock 5 s off. 255 is accepted, as in the
+    // shipped configs.
+    let mut sc = sim_config(33);
+    sc.gcs_timesync = Some(GcsTimesync::qgc(5_000.0).unwrap());
+    let p = start(sc, |c| c.accept_system_ids = vec![1, 255]).await;
+    let h = p
+        .health_until("synced, with the station's answers heard", |h| {
+            h.synced && h.timesync_foreign >= 10
+        })
+        .await;
+    let f = measure(&p, 30, Duration::from_millis(400)).await;
+    println!("{}", f.summary("a ground station answering TIMESYNC"));
+    assert_eq!(f.sync_err_ns.len(), f.frames, "{}", f.summary("synced"));
+    // Taking the station's answers would put the estimate 5 s off.
+    assert!(
+        rms(&f.sync_err_ns) < 1e6 && max(&f.sync_err_ns) < 50e6,
+        "{}",
+        f.summary("time sync")
+    );
+    assert!(rms(&f.pos_err_m) < 0.05, "{}", f.summary("poses"));
+    let stats = p.sim.stats();
+    assert!(
+        stats.gcs_timesync_replies >= h.timesync_foreign,
+        "{stats:?} {h:?}"
+    );
     p.stop().await;
 }

@@ -123,6 +123,36 @@ pub struct SimConfig {
     pub truth_path: Option<PathBuf>,
     pub truth_every_step: bool,
     pub faults: Faults,
+    /// A ground station behind the autopilot that answers TIMESYNC requests heard on the main
+    /// transport, as ArduPilot's ground stations do with the requests it forwards to them.
+    pub gcs_timesync: Option<GcsTimesync>,
+}
+
+/// A ground station answering TIMESYNC requests with its own clock: each request heard on the
+/// main transport gets its reply first, then the autopilot's. Its clock reads the autopilot's
+/// boot clock plus `offset_ns`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct GcsTimesync {
+    pub system_id: u8,
+    pub component_id: u8,
+    pub offset_ns: i64,
+}
+
+impl GcsTimesync {
+    /// A ground station with the usual ids (system 255, component 190), its clock `offset_ms`
+    /// off the autopilot's.
+    pub fn qgc(offset_ms: f64) -> Result<Self, String> {
+        if !(offset_ms.is_finite() && offset_ms.abs() <= 1e9) {
+            return Err(format!(
+                "must be a number of ms within ±1e9, got {offset_ms}"
+            ));
+        }
+        Ok(GcsTimesync {
+            system_id: 255,
+            component_id: 190,
+            offset_ns: (offset_ms * 1e6).round() as i64,
+        })
+    }
 }
 
 #[derive(Deserialize, Default)]
@@ -140,6 +170,25 @@ struct Raw {
     truth: RawTruth,
     #[serde(default)]
     faults: RawFaults,
+    gcs_timesync: Option<RawGcsTimesync>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields, default)]
+struct RawGcsTimesync {
+    system_id: u8,
+    component_id: u8,
+    offset_ms: f64,
+}
+
+impl Default for RawGcsTimesync {
+    fn default() -> Self {
+        Self {
+            system_id: 255,
+            component_id: 190,
+            offset_ms: 5000.0,
+        }
+    }
 }
 
 #[derive(Deserialize)]
@@ -467,7 +516,29 @@ impl SimConfig {
             jitter: secs("faults.jitter_ms", f.jitter_ms / 1e3)?,
             events,
         };
+        let gcs_timesync = match raw.gcs_timesync {
+            None => None,
+            Some(g) => {
+                if g.system_id == 0 || g.system_id == l.system_id {
+                    return Err(bad(
+                        "gcs_timesync.system_id",
+                        format!(
+                            "{}: must be non-zero and not the autopilot's ({})",
+                            g.system_id, l.system_id
+                        ),
+                    ));
+                }
+                let qgc =
+                    GcsTimesync::qgc(g.offset_ms).map_err(|e| bad("gcs_timesync.offset_ms", e))?;
+                Some(GcsTimesync {
+                    system_id: g.system_id,
+                    component_id: g.component_id,
+                    ..qgc
+                })
+            }
+        };
         Ok(SimConfig {
+            gcs_timesync,
             transport,
             mavlink_version: l.mavlink_version,
             system_id: l.system_id,

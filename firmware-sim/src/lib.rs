@@ -14,7 +14,7 @@ mod transport;
 pub mod truth;
 
 pub use clock::mono_ns;
-pub use config::{ConfigError, FaultKind, Pattern, SimConfig, Transport};
+pub use config::{ConfigError, FaultKind, GcsTimesync, Pattern, SimConfig, Transport};
 pub use faults::Noise;
 pub use sim::{start, SimError, SimHandle, SimStats};
 pub use truth::Truth;

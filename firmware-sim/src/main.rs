@@ -49,6 +49,11 @@ struct Args {
     /// repeat for more. Added to the config's `[[faults.events]]`.
     #[arg(long = "event", value_name = "KIND@AT_S[:DURATION_S]")]
     events: Vec<String>,
+    /// A ground station (system 255, component 190) that answers every TIMESYNC request heard
+    /// on the link, ahead of the autopilot, with a clock OFFSET_MS off the autopilot's
+    /// (overrides the config's `[gcs_timesync]`).
+    #[arg(long, value_name = "OFFSET_MS", allow_hyphen_values = true)]
+    gcs_answers_timesync: Option<f64>,
 }
 
 fn event(spec: &str) -> Result<FaultEvent, String> {
@@ -152,6 +157,17 @@ fn config(a: &Args) -> Result<SimConfig, String> {
     }
     for e in &a.events {
         c.faults.events.push(event(e)?);
+    }
+    if let Some(ms) = a.gcs_answers_timesync {
+        let g = firmware_sim::GcsTimesync::qgc(ms)
+            .map_err(|e| format!("--gcs-answers-timesync: {e}"))?;
+        if g.system_id == c.system_id {
+            return Err(format!(
+                "--gcs-answers-timesync: the autopilot is system {} too",
+                c.system_id
+            ));
+        }
+        c.gcs_timesync = Some(g);
     }
     c.truth_path = a.truth.clone().or(c.truth_path);
     Ok(c)

@@ -54,6 +54,8 @@ pub struct SimStats {
     pub forwarded_to_gcs: u64,
     /// Frames from the ground station put on the main transport (before the wire's faults).
     pub forwarded_from_gcs: u64,
+    /// TIMESYNC replies of the configured `gcs_timesync` station put on the main transport.
+    pub gcs_timesync_replies: u64,
 }
 
 struct Shared {
@@ -234,6 +236,8 @@ struct Engine {
     noise: Noise,
     /// Sequence numbers per link (main, ground station), so neither sees gaps.
     seq: [u8; 2],
+    /// The sequence of the `gcs_timesync` station's frames.
+    gcs_timesync_seq: u8,
     last_delivery: tokio::time::Instant,
     /// Per stream: period (ms, 0 = off) and next due boot ms.
     streams: [(u64, u64); 8],
@@ -296,6 +300,7 @@ impl Engine {
             rng: Rng::new(cfg.faults.seed),
             noise,
             seq: [0; 2],
+            gcs_timesync_seq: 0,
             last_delivery: tokio::time::Instant::now(),
             streams: [(0, 0); 8],
             silent_until: 0,
@@ -726,6 +731,11 @@ impl Engine {
         if now < self.quiet_until {
             return;
         }
+        if let (Side::Main, Some(MavMessage::TIMESYNC(t))) = (from, &msg) {
+            if t.tc1 == 0 {
+                self.gcs_answers_timesync(io, t.ts1, &header);
+            }
+        }
         match from {
             Side::Main => self.to_gcs(io, &raw, |s| &mut s.forwarded_to_gcs),
             Side::Gcs => {
@@ -774,6 +784,44 @@ impl Engine {
                 }
             }
             _ => {}
+        }
+    }
+
+    /// The `gcs_timesync` station's answer to a TIMESYNC request heard on the main transport
+    /// (whatever its target: ground stations answer every request they get), stamped by the
+    /// station's clock and sent ahead of the autopilot's own reply, so a requester that takes
+    /// the first answer matching its ts1 takes the wrong one.
+    fn gcs_answers_timesync(&mut self, io: &Links, ts1: i64, from: &MavHeader) {
+        let Some(g) = self.cfg.gcs_timesync else {
+            return;
+        };
+        let now = mono_ns();
+        let reply = MavMessage::TIMESYNC(TIMESYNC_DATA {
+            tc1: (self.boot.boot_ns(now) as i64).saturating_add(g.offset_ns),
+            ts1,
+            target_system: from.system_id as u8,
+            target_component: from.component_id,
+        });
+        let header = MavHeader {
+            system_id: g.system_id.into(),
+            component_id: g.component_id,
+            sequence: self.gcs_timesync_seq,
+        };
+        self.gcs_timesync_seq = self.gcs_timesync_seq.wrapping_add(1);
+        let version = if self.cfg.mavlink_version == 1 {
+            MavlinkVersion::V1
+        } else {
+            MavlinkVersion::V2
+        };
+        let mut bytes = Vec::with_capacity(32);
+        if mavlink::write_versioned_msg(&mut bytes, version, header, &reply).is_ok()
+            && self.wire(io, bytes, now)
+        {
+            self.shared
+                .stats
+                .lock()
+                .expect("stats lock")
+                .gcs_timesync_replies += 1;
         }
     }
 

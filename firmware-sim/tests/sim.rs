@@ -27,6 +27,8 @@ fn config_errors_name_the_field() {
             "[streams]\nglobal_position_int_hz = 5000",
             "streams.global_position_int_hz",
         ),
+        ("[gcs_timesync]\nsystem_id = 1", "gcs_timesync.system_id"),
+        ("[gcs_timesync]\noffset_ms = nan", "gcs_timesync.offset_ms"),
     ];
     for (text, field) in cases {
         let e = SimConfig::from_toml(text).unwrap_err().to_string();
@@ -41,6 +43,16 @@ fn config_errors_name_the_field() {
     )
     .unwrap();
     assert_eq!(ok.faults.events.len(), 1);
+    assert_eq!(ok.gcs_timesync, None);
+    let g = SimConfig::from_toml("[gcs_timesync]\noffset_ms = -2.5").unwrap();
+    assert_eq!(
+        g.gcs_timesync,
+        Some(firmware_sim::GcsTimesync {
+            system_id: 255,
+            component_id: 190,
+            offset_ns: -2_500_000,
+        })
+    );
 }
 
 type Conn = mavlink::AsyncConnection<MavMessage>;

@@ -189,7 +189,7 @@ fn sim_config_text(a: &SimArgs, scene_path: &Path, flight_dir: &Path, scene: &Sc
 address = "serial:/dev/null:921600"
 system_id = 1
 component_id = 100
-accept_system_ids = [1, 255]
+accept_system_ids = [1, 255, 245, 190]
 position_hz = {hz}
 attitude_hz = {hz}
 
