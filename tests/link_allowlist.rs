@@ -127,7 +127,7 @@ async fn only_allow_listed_messages_and_commands_leave() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn commands_from_foreign_systems_are_ignored() {
+async fn telemetry_from_foreign_systems_is_ignored() {
     // The simulator speaks as system 1; accept only system 7.
     let p = start(sim_config(32), |c| c.accept_system_ids = vec![7]).await;
     let h = p

@@ -305,7 +305,7 @@ impl Tracker {
         };
         let ours = c.target_system == self.cfg.system_id
             && (c.target_component == self.cfg.component_id || c.target_component == 0);
-        ours.then(|| LinkEvent::Command {
+        ours.then_some(LinkEvent::Command {
             system_id: h.system_id as u8,
             component_id: h.component_id,
             command: c.command as u32,
