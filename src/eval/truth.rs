@@ -192,17 +192,7 @@ impl<'a> Truth<'a> {
     /// lateral image edge leave it after a few metres of travel whatever the
     /// spacing), so views per point leave it out.
     pub fn visible_along_track(&self, p: [f64; 3], x_m: f64) -> bool {
-        let c = [x_m, self.y_m, self.z_m];
-        let rel = [p[0] - c[0], p[1] - c[1], p[2] - c[2]];
-        let (a, u, _) = self.basis();
-        let depth = rel[0] * a[0] + rel[1] * a[1] + rel[2] * a[2];
-        if depth <= 1e-6 {
-            return false;
-        }
-        let col = self.g.focal_px * (rel[0] * u[0] + rel[1] * u[1] + rel[2] * u[2]) / depth
-            + self.g.cx_px
-            - 0.5;
-        (-0.5..=self.g.width as f64 - 0.5).contains(&col) && !self.occluded(c, p)
+        self.in_track_frustum(p, x_m) && !self.occluded([x_m, self.y_m, self.z_m], p)
     }
 
     /// Whether capture `cap` sees the point at continuous pixel `(col, row)`
