@@ -46,8 +46,7 @@ pub fn gaussian_window() -> [f64; SSIM_WINDOW] {
 /// Mean SSIM of `a` against `b` (`width`×`height`, row-major), dynamic range
 /// `peak`; `None` for images smaller than the window.
 pub fn ssim(a: &[f32], b: &[f32], width: usize, height: usize, peak: f64) -> Option<f64> {
-    let map = ssim_map(a, b, width, height, peak)?;
-    Some(map.values.iter().sum::<f64>() / map.values.len() as f64)
+    ssim_map(a, b, width, height, peak).map(|m| m.mean())
 }
 
 /// SSIM of every window fully inside the image, row-major; the window at
@@ -60,12 +59,9 @@ pub struct SsimMap {
 }
 
 impl SsimMap {
-    /// The SSIM of the window centred on image pixel `(row, col)`, if any.
-    #[inline]
-    pub fn at_pixel(&self, row: usize, col: usize) -> Option<f64> {
-        let h = SSIM_WINDOW / 2;
-        let (r, c) = (row.checked_sub(h)?, col.checked_sub(h)?);
-        (r < self.height && c < self.width).then(|| self.values[r * self.width + c])
+    /// The mean over the windows: the image's SSIM.
+    pub fn mean(&self) -> f64 {
+        self.values.iter().sum::<f64>() / self.values.len() as f64
     }
 }
 

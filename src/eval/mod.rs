@@ -563,7 +563,7 @@ fn score_view(
         }
         if with_ssim {
             if let Some(map) = ssim_map(img, &target.lum, g.width, g.height, 1.0) {
-                sc.ssim[r] = map.values.iter().sum::<f64>() / map.values.len() as f64;
+                sc.ssim[r] = map.mean();
                 let half = crate::metrics::SSIM_WINDOW / 2;
                 for mr in 0..map.height {
                     for mc in 0..map.width {

@@ -15,7 +15,7 @@ const SETTING_TITLES: [&str; 2] = [
     "equal number of captures (each method's spacing scaled to the occlusion-aware count)",
 ];
 
-fn num(x: f64) -> Value {
+pub(super) fn num(x: f64) -> Value {
     if x.is_finite() {
         json!(x)
     } else {

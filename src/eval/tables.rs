@@ -3,6 +3,7 @@
 //! data volume at a guarantee, quality per pixel class and at equal captures;
 //! and their `results.json` keys (`segments`, `targets`, per scene `guarantee`).
 
+use super::report::num;
 use super::truth::{Targets, CLASS_NAMES, DEFAULT_TARGETS};
 use super::{
     SceneResult, Segment, SweepPoint, CALIBRATION_FIT, METHODS, PARALLAX_LEVELS_PX, RENDERERS,
@@ -10,14 +11,6 @@ use super::{
 };
 use serde_json::{json, Map, Value};
 use std::fmt::Write;
-
-fn num(x: f64) -> Value {
-    if x.is_finite() {
-        json!(x)
-    } else {
-        Value::Null
-    }
-}
 
 fn onum(x: Option<f64>) -> Value {
     x.map_or(Value::Null, num)
@@ -127,6 +120,7 @@ pub fn segments_json(results: &[SceneResult]) -> Value {
                     "spacing_m": p.spacing_m,
                     "unseen_fraction": {"median": num(p.geo.unseen_median), "worst": num(p.geo.unseen_worst)},
                     "parallax_px": {"median": onum(p.geo.parallax_median_px), "worst": onum(p.geo.parallax_worst_px)},
+                    "out_of_both_fraction": {"median": num(p.geo.out_of_both_median)},
                     "scored_views": p.scored,
                     "psnr_db": {"lightfield": num(p.psnr_db[0]), "warp": num(p.psnr_db[1])},
                     "ssim": {"lightfield": num(p.ssim[0]), "warp": num(p.ssim[1])},

@@ -67,8 +67,6 @@ pub struct Classification {
     /// Disparity range between the two captures over the pixels both see,
     /// robust ([`PARALLAX_PERCENTILES`]), pixels; `None` if none is seen by both.
     pub parallax_span_px: Option<f64>,
-    /// The same, minimum to maximum.
-    pub parallax_range_px: Option<f64>,
     /// Pixel tests the depth maps could not decide, settled exactly.
     pub exact_tests: usize,
 }
@@ -292,8 +290,8 @@ impl<'a> Truth<'a> {
                 counts[c as usize] += 1;
             }
         }
-        let (span, range) = if disparities.is_empty() {
-            (None, None)
+        let span = if disparities.is_empty() {
+            None
         } else {
             // Order statistics by selection, O(n): this runs for every view
             // of every sweep.
@@ -302,22 +300,16 @@ impl<'a> Truth<'a> {
                 ((n - 1) as f64 * PARALLAX_PERCENTILES.0).round() as usize,
                 ((n - 1) as f64 * PARALLAX_PERCENTILES.1).round() as usize,
             );
-            let min = disparities.iter().copied().fold(f64::INFINITY, f64::min);
-            let max = disparities
-                .iter()
-                .copied()
-                .fold(f64::NEG_INFINITY, f64::max);
             let q_hi = *disparities.select_nth_unstable_by(hi, f64::total_cmp).1;
             let q_lo = *disparities[..=hi]
                 .select_nth_unstable_by(lo.min(hi), f64::total_cmp)
                 .1;
-            (Some(q_hi - q_lo), Some(max - min))
+            Some(q_hi - q_lo)
         };
         Classification {
             class,
             counts,
             parallax_span_px: span,
-            parallax_range_px: range,
             exact_tests,
         }
     }

@@ -15,34 +15,30 @@ fn required(present: bool, test: &str, what: &str, install: &str) -> bool {
     present
 }
 
-/// Whether `python3` can import pymavlink (see the module doc for what happens if not).
-pub fn pymavlink(test: &str) -> bool {
+/// Whether `python3` can import `module`, installed by `pip install {module}`
+/// (see the module doc for what happens if not).
+fn python_module(test: &str, module: &str) -> bool {
     let present = Command::new("python3")
-        .args(["-c", "import pymavlink"])
+        .args(["-c", &format!("import {module}")])
         .stderr(Stdio::null())
         .status()
         .is_ok_and(|s| s.success());
     required(
         present,
         test,
-        "python3 with pymavlink",
-        "pip install pymavlink, or run scripts/setup.sh",
+        &format!("python3 with {module}"),
+        &format!("pip install {module}, or run scripts/setup.sh"),
     )
 }
 
-/// Whether `python3` can import pycolmap (see the module doc for what happens if not).
+/// Whether `python3` can import pymavlink.
+pub fn pymavlink(test: &str) -> bool {
+    python_module(test, "pymavlink")
+}
+
+/// Whether `python3` can import pycolmap.
 pub fn pycolmap(test: &str) -> bool {
-    let present = Command::new("python3")
-        .args(["-c", "import pycolmap"])
-        .stderr(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success());
-    required(
-        present,
-        test,
-        "python3 with pycolmap",
-        "pip install pycolmap, or run scripts/setup.sh",
-    )
+    python_module(test, "pycolmap")
 }
 
 /// Whether `exiftool` runs (see the module doc for what happens if not).
