@@ -25,7 +25,7 @@ use alfd::link::LinkConfig;
 use alfd::scene::Scene;
 use alfd::source::decode::{mjpeg_to_rgb, png_to_rgb, yuyv_to_rgb, z16_to_depth};
 use firmware_sim::SimConfig;
-use mavlink::dialects::common::*;
+use mavlink::dialects::ardupilotmega::*;
 use mavlink::error::MessageReadError;
 use mavlink::{AsyncMavlinkReader, MavHeader, MavlinkReader, Message};
 use proptest::prelude::*;

@@ -262,7 +262,7 @@ fn exif_gps_in_logged_jpegs_reads_back_with_exiftool() {
 fn frame(
     version: mavlink::MavlinkVersion,
     seq: u8,
-    msg: &mavlink::dialects::common::MavMessage,
+    msg: &mavlink::dialects::ardupilotmega::MavMessage,
 ) -> Vec<u8> {
     let header = mavlink::MavHeader {
         system_id: 1,
@@ -276,7 +276,7 @@ fn frame(
 
 #[test]
 fn telemetry_tlog_holds_timestamped_frames_as_received() {
-    use mavlink::dialects::common::{MavMessage, ATTITUDE_DATA, HEARTBEAT_DATA};
+    use mavlink::dialects::ardupilotmega::{MavMessage, ATTITUDE_DATA, HEARTBEAT_DATA};
     use mavlink::MavlinkVersion::{V1, V2};
     let msgs = [
         (V2, MavMessage::HEARTBEAT(HEARTBEAT_DATA::default())),

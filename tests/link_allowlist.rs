@@ -10,7 +10,7 @@ use alfd::core::allowlist::{may_send, ALLOWED_COMMANDS, ALLOWED_MESSAGES};
 use alfd::link::SendError;
 use firmware_sim::{GcsTimesync, SimEvent};
 use link_support::*;
-use mavlink::dialects::common::*;
+use mavlink::dialects::ardupilotmega::*;
 use mavlink::{MavlinkVersion, Message};
 use std::time::Duration;
 

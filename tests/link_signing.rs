@@ -8,7 +8,7 @@
 mod tools;
 
 use alfd::link::{self, LinkConfig, LinkConfigError, LinkEvent, LinkHandle, LinkHealth};
-use mavlink::dialects::common::*;
+use mavlink::dialects::ardupilotmega::*;
 use mavlink::{MAVLinkV2MessageRaw, MavHeader, MavlinkVersion, SigningConfig, SigningData};
 use std::future::Future;
 use std::io::{BufRead, BufReader};

@@ -6,7 +6,7 @@ mod link_support;
 use alfd::link::SendError;
 use firmware_sim::Transport;
 use link_support::*;
-use mavlink::dialects::common::*;
+use mavlink::dialects::ardupilotmega::*;
 use std::time::Duration;
 
 async fn poses_flow(p: &Pair, label: &str) {

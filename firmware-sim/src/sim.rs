@@ -11,7 +11,7 @@ use crate::trajectory::{quat_from_rpy, Trajectory};
 use crate::transport::{self, GcsLink, Inbound, LinkCtl, LinkIo, Outgoing};
 use crate::truth::{Line, Truth};
 use crate::{Fault, SimEvent};
-use mavlink::dialects::common::*;
+use mavlink::dialects::ardupilotmega::*;
 use mavlink::{MavHeader, MavlinkVersion, Message};
 use std::io::Write;
 use std::path::{Path, PathBuf};

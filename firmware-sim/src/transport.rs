@@ -7,7 +7,7 @@ use crate::clock::mono_ns;
 use crate::config::Transport;
 use crate::pty::{relink, Pty, PtyWriter};
 use crate::SimEvent;
-use mavlink::dialects::common::MavMessage;
+use mavlink::dialects::ardupilotmega::MavMessage;
 use mavlink::{AsyncMavlinkReader, MAVLinkMessageRaw, MavHeader, Message};
 use std::io;
 use std::net::SocketAddr;

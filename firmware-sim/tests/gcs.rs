@@ -4,7 +4,7 @@
 //! autopilot when addressed to it; the wire's faults stay on the companion's side.
 
 use firmware_sim::SimConfig;
-use mavlink::dialects::common::*;
+use mavlink::dialects::ardupilotmega::*;
 use mavlink::{AsyncMavConnection, MAVLinkMessageRaw, MavHeader, MavlinkVersion, Message};
 use std::net::SocketAddr;
 use std::time::Duration;

@@ -3,7 +3,7 @@
 //! truth at each trigger; its boot clock restarts on a reboot.
 
 use firmware_sim::{Fault, SimConfig, SimEvent};
-use mavlink::dialects::common::*;
+use mavlink::dialects::ardupilotmega::*;
 use mavlink::{AsyncMavConnection, MavHeader};
 use std::time::Duration;
 

@@ -30,7 +30,7 @@ use alfd::link::{LinkConfig, Reaction, Tracker};
 use libfuzzer_sys::fuzz_target;
 
 alfd_fuzz::cap_allocations!();
-use mavlink::dialects::common::MavMessage;
+use mavlink::dialects::ardupilotmega::MavMessage;
 use mavlink::error::MessageReadError;
 use mavlink::{AsyncMavlinkReader, MavHeader, MavlinkReader, Message};
 use tokio::io::{AsyncRead, ReadBuf};

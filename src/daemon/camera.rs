@@ -8,7 +8,7 @@ use std::sync::atomic::{AtomicU16, Ordering};
 
 use crate::core::allowlist::{may_obey, Trust};
 use glam::DQuat;
-use mavlink::dialects::common::{
+use mavlink::dialects::ardupilotmega::{
     CameraCapFlags, CameraMode, MavBool, MavCmd, MavMessage, MavResult, MavSeverity, StorageStatus,
     StorageType, StorageUsageFlag, CAMERA_CAPTURE_STATUS_DATA, CAMERA_IMAGE_CAPTURED_DATA,
     CAMERA_INFORMATION_DATA, CAMERA_SETTINGS_DATA, COMMAND_ACK_DATA, NAMED_VALUE_FLOAT_DATA,

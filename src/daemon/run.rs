@@ -18,7 +18,7 @@ use crate::core::{DepthData, DepthImage, Estimate, Intrinsics};
 use crate::link::{self, mono_ns, LinkEvent, LinkHandle, LinkHealth, TapFrame};
 use crate::notify::Notifier;
 use crate::source::{DepthSource, FrameAt, FrameRing, FrameSource, SourceError, Stamped};
-use mavlink::dialects::common::*;
+use mavlink::dialects::ardupilotmega::*;
 use std::future::Future;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};

@@ -16,7 +16,7 @@ pub use task::{new, Link, LinkError, TapFrame};
 use crate::core::allowlist::Trust;
 use crate::core::geo::Geodetic;
 use crate::core::pose::Pose;
-use mavlink::dialects::common::MavMessage;
+use mavlink::dialects::ardupilotmega::MavMessage;
 use tokio::sync::{mpsc, oneshot, watch};
 
 /// The latest vehicle state, from the newest accepted position and attitude.

@@ -12,7 +12,7 @@ use crate::core::pose::{
 };
 use crate::core::timesync::{SampleOutcome, TimeCheck, TimeSync, TimeSyncConfig};
 use glam::{DQuat, DVec3};
-use mavlink::dialects::common::*;
+use mavlink::dialects::ardupilotmega::*;
 use mavlink::MavHeader;
 use std::collections::{HashMap, VecDeque};
 

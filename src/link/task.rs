@@ -10,7 +10,7 @@ use super::state::{Reaction, Tracker};
 use super::{Command, LinkEvent, LinkHandle, LinkHealth, SendError, VehicleState};
 use crate::core::allowlist;
 use crate::core::backoff::reconnect_delay_ms;
-use mavlink::dialects::common::*;
+use mavlink::dialects::ardupilotmega::*;
 use mavlink::error::MessageReadError;
 use mavlink::{
     AsyncConnection, AsyncMavConnection, MavHeader, MavlinkVersion, Message, SigningConfig,
