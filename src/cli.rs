@@ -2,7 +2,7 @@
 //! of each subcommand.
 
 use alfd::config::Config;
-use alfd::core::{Decimation, Estimator, Intrinsics, Model};
+use alfd::core::{Decimation, Estimator, Intrinsics, Model, Profile};
 use alfd::depthio::{read_depth, DepthFormat, ReadOptions};
 use alfd::report::{estimate_json, estimate_text, InputInfo};
 use alfd::tradeoff;
@@ -124,9 +124,25 @@ struct EstimateArgs {
     /// Config file ([sampling], [estimator], [score]).
     #[arg(long)]
     config: Option<PathBuf>,
-    /// Override the sampling model: occlusion, mmds, sspa, fixed.
+    /// Override the sampling model: quality (the default), occlusion, mmds, sspa, fixed.
     #[arg(long)]
     model: Option<String>,
+    /// Quality profile: lightfield (parallax 2 px, unseen 0.002, 2 views) or
+    /// mapping (80 % forward overlap, unseen 0.002, 3 views); the flags below override it.
+    #[arg(long)]
+    profile: Option<String>,
+    /// Largest disparity range per capture step, px ("off": not in force).
+    #[arg(long)]
+    parallax_px: Option<String>,
+    /// Least forward overlap at the nearest depth, 0 to 0.99 ("off": not in force).
+    #[arg(long)]
+    forward_overlap: Option<String>,
+    /// Largest fraction of an in-between view neither neighbouring capture sees.
+    #[arg(long)]
+    unseen_fraction_max: Option<f64>,
+    /// Captures every visible surface point must be in.
+    #[arg(long)]
+    views_per_point_min: Option<u32>,
     /// Also compute SSPA (the single slanted plane).
     #[arg(long)]
     sspa: bool,
@@ -231,8 +247,36 @@ fn estimate(a: EstimateArgs) -> Result<ExitCode> {
     }
     let p = &mut cfg.estimator;
     if let Some(m) = &a.model {
-        p.model = Model::parse(m)
-            .ok_or_else(|| bad(format!("--model {m}: use occlusion, mmds, sspa or fixed")))?;
+        p.model = Model::parse(m).ok_or_else(|| {
+            bad(format!(
+                "--model {m}: use quality, occlusion, mmds, sspa or fixed"
+            ))
+        })?;
+    }
+    if let Some(name) = &a.profile {
+        p.quality = Profile::parse(name)
+            .ok_or_else(|| bad(format!("--profile {name}: use lightfield or mapping")))?
+            .targets();
+    }
+    let target = |flag: &str, v: &str| -> Result<Option<f64>> {
+        if v == "off" {
+            return Ok(None);
+        }
+        v.parse::<f64>()
+            .map(Some)
+            .map_err(|_| bad(format!("--{flag} {v}: a number, or off")))
+    };
+    if let Some(v) = &a.parallax_px {
+        p.quality.parallax_px = target("parallax-px", v)?;
+    }
+    if let Some(v) = &a.forward_overlap {
+        p.quality.forward_overlap = target("forward-overlap", v)?;
+    }
+    if let Some(v) = a.unseen_fraction_max {
+        p.quality.unseen_fraction_max = v;
+    }
+    if let Some(v) = a.views_per_point_min {
+        p.quality.views_per_point_min = v;
     }
     p.with_sspa |= a.sspa;
     if let Some(d) = &a.decimation {

@@ -8,7 +8,7 @@ use crate::capture::{CaptureMode, ImageFormat};
 use crate::core::inverse::DepthRange;
 use crate::core::params::{Decimation, GainModel, DECIMATION_LEVELS};
 use crate::core::trigger::TriggerParams;
-use crate::core::{EstimatorParams, Model, ParamError, TrackAxis};
+use crate::core::{EstimatorParams, Model, ParamError, Profile, TrackAxis};
 use crate::link::{LinkConfig, RawLinkConfig};
 use crate::source::select::DeviceSelector;
 use serde::Deserialize;
@@ -46,6 +46,8 @@ impl ConfigError {
 #[derive(Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RawConfig {
+    #[serde(default)]
+    pub quality: RawQuality,
     #[serde(default)]
     pub sampling: RawSampling,
     #[serde(default)]
@@ -128,6 +130,37 @@ pub struct RawTrigger {
     pub rate_max_hz: Option<f64>,
     pub fallback_spacing_m: Option<f64>,
     pub margin: Option<f64>,
+    pub closed_loop: Option<bool>,
+}
+
+/// `[quality]`: a profile's targets, each settable directly (DESIGN §1).
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawQuality {
+    pub profile: Option<String>,
+    /// A number of pixels, or `false` to take the target out of force.
+    pub parallax_px: Option<RawTarget>,
+    pub forward_overlap: Option<RawTarget>,
+    pub unseen_fraction_max: Option<f64>,
+    pub views_per_point_min: Option<i64>,
+}
+
+/// A target's value, or `false`: not in force.
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(untagged)]
+pub enum RawTarget {
+    Value(f64),
+    Off(bool),
+}
+
+impl RawTarget {
+    fn resolve(self, field: &'static str) -> Result<Option<f64>, ParamError> {
+        match self {
+            RawTarget::Value(v) => Ok(Some(v)),
+            RawTarget::Off(false) => Ok(None),
+            RawTarget::Off(true) => Err(bad(field, "a number, or false to turn the target off")),
+        }
+    }
 }
 
 #[derive(Debug, Default, Deserialize)]
@@ -250,8 +283,36 @@ impl RawConfig {
                 bad(
                     "sampling.model",
                     format!(
-                        "unknown model {m:?}: use \"occlusion\", \"mmds\", \"sspa\" or \"fixed\""
+                        "unknown model {m:?}: use \"quality\", \"occlusion\", \"mmds\", \"sspa\" or \"fixed\""
                     ),
+                )
+            })?;
+        }
+        let q = &self.quality;
+        if let Some(name) = &q.profile {
+            p.quality = Profile::parse(name)
+                .ok_or_else(|| {
+                    bad(
+                        "quality.profile",
+                        format!("unknown profile {name:?}: use \"lightfield\" or \"mapping\""),
+                    )
+                })?
+                .targets();
+        }
+        if let Some(t) = q.parallax_px {
+            p.quality.parallax_px = t.resolve("quality.parallax_px")?;
+        }
+        if let Some(t) = q.forward_overlap {
+            p.quality.forward_overlap = t.resolve("quality.forward_overlap")?;
+        }
+        if let Some(v) = q.unseen_fraction_max {
+            p.quality.unseen_fraction_max = v;
+        }
+        if let Some(k) = q.views_per_point_min {
+            p.quality.views_per_point_min = u32::try_from(k).map_err(|_| {
+                bad(
+                    "quality.views_per_point_min",
+                    format!("must be a whole number from 1 to 100, got {k}"),
                 )
             })?;
         }
@@ -676,6 +737,7 @@ impl RawConfig {
                 1e4,
             )?,
             margin: fraction("trigger.margin", t.margin.unwrap_or(defaults.margin), 0.5)?,
+            closed_loop: t.closed_loop.unwrap_or(defaults.closed_loop),
         };
         Ok(Config {
             estimator: estimator.clone(),

@@ -1,6 +1,7 @@
 //! Estimates as the outside world reads them: the JSON object of DESIGN §4
 //! (every number finite or null) and a short human summary.
 
+use crate::capture::QualityRecord;
 use crate::core::estimate::DecimationChoice;
 use crate::core::{Estimate, EstimatorParams};
 use serde_json::{json, Value};
@@ -51,7 +52,21 @@ pub fn estimate_json(
             "degree": num(Some(o.degree)),
             "max_degree": num(Some(o.max_degree)),
         })),
+        "quality": e.quality.filter(|_| ok).and_then(|_| {
+            e.spacing.chosen_m.and_then(|c| QualityRecord::from_estimate(e, c))
+        }),
+        "visibility": e.visibility.filter(|_| ok).map(|v| json!({
+            "samples": v.samples,
+            "occluded_samples": v.occluded_samples,
+            "occluded_lines": v.occluded_lines,
+            "interval_min_m": num(v.interval_min_m),
+            "occluded_interval_min_m": num(v.occluded_interval_min_m),
+        })),
         "spacing_m": {
+            "parallax": num(e.spacing.parallax_m),
+            "forward_overlap": num(e.spacing.forward_overlap_m),
+            "unseen_fraction": num(e.spacing.unseen_m),
+            "views_per_point": num(e.spacing.views_m),
             "mmds": num(e.spacing.mmds_m),
             "sspa": num(e.spacing.sspa_m),
             "occlusion": num(e.spacing.occlusion_m),
@@ -141,6 +156,70 @@ pub fn estimate_text(
         );
     }
     let sp = &e.spacing;
+    if let Some(q) = e.quality {
+        let t = q.targets;
+        let opt =
+            |x: Option<f64>, unit: &str| x.map_or("off".to_string(), |v| format!("{v}{unit}"));
+        let _ = writeln!(
+            s,
+            "targets        {} profile: parallax {}, forward overlap {}, unseen <= {}, views >= {}",
+            t.profile.as_str(),
+            opt(t.parallax_px, " px"),
+            opt(t.forward_overlap, ""),
+            t.unseen_fraction_max,
+            t.views_per_point_min
+        );
+        if let Some(v) = e.visibility {
+            let _ = writeln!(
+                s,
+                "visibility     {} of {} samples occluded on {} lines{}",
+                v.occluded_samples,
+                v.samples,
+                v.occluded_lines,
+                if v.occluded_samples == 0 {
+                    " (term left out)"
+                } else {
+                    ""
+                }
+            );
+        }
+        let row = |name: &str, on: bool, m: Option<f64>, at: String| {
+            if on {
+                format!(
+                    "spacing  {name:<16}{:<12} predicted at chosen: {at}\n",
+                    fmt_m(m)
+                )
+            } else {
+                format!("spacing  {name:<16}off\n")
+            }
+        };
+        let pv = |x: Option<f64>, f: &dyn Fn(f64) -> String| x.map_or("n/a".into(), f);
+        s.push_str(&row(
+            "parallax",
+            e.terms.parallax,
+            sp.parallax_m,
+            pv(q.parallax_px, &|v| format!("{v:.2} px")),
+        ));
+        s.push_str(&row(
+            "forward_overlap",
+            e.terms.forward_overlap,
+            sp.forward_overlap_m,
+            pv(q.forward_overlap, &|v| format!("{:.1} %", 100.0 * v)),
+        ));
+        s.push_str(&row(
+            "unseen_fraction",
+            e.terms.visibility,
+            sp.unseen_m,
+            pv(q.unseen_fraction, &|v| format!("{v:.5}")),
+        ));
+        s.push_str(&row(
+            "views_per_point",
+            e.terms.views,
+            sp.views_m,
+            q.views_per_point
+                .map_or("n/a".into(), |k| format!("{k} views")),
+        ));
+    }
     let _ = writeln!(s, "spacing  mmds      {}", fmt_m(sp.mmds_m));
     if e.terms.sspa {
         let _ = writeln!(s, "         sspa      {}", fmt_m(sp.sspa_m));

@@ -15,8 +15,9 @@ pub use exif::{
 };
 pub use export::{camera_to_world_gl, geo_txt, transforms, write_exports, ExportSummary};
 pub use record::{
-    image_file_name, Attitude, CameraIntrinsics, CaptureMode, CaptureRecord, ImageFormat,
-    Occlusion, Position, Spacing,
+    image_file_name, Attitude, CameraIntrinsics, CaptureMode, CaptureRecord, ClosedLoopRecord,
+    ImageFormat, Occlusion, Position, QualityRecord, QualitySpacingM, QualityTargets,
+    QualityValues, Spacing,
 };
 pub use store::{
     log_capture, parse_manifest, read_manifest, CaptureStore, DirStore, FillingStore, LogError,

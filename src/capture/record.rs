@@ -2,6 +2,7 @@
 //! decoding, and the image file name derived from the sequence number alone.
 //! Pure: no I/O. Non-finite numbers are written as `null` and read back as NaN.
 
+use crate::core::Estimate;
 use serde::{Deserialize, Deserializer, Serialize};
 
 /// How the picture was taken (DESIGN §2, capture modes).
@@ -81,6 +82,107 @@ pub struct Occlusion {
     pub degree: f64,
 }
 
+/// The quality targets in force (`[quality]`); a target not in force is `null`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct QualityTargets {
+    /// `lightfield` or `mapping`: where the defaults came from.
+    pub profile: String,
+    pub parallax_px: Option<f64>,
+    pub forward_overlap: Option<f64>,
+    pub unseen_fraction_max: f64,
+    pub views_per_point_min: u32,
+}
+
+/// Each target's value predicted at a spacing from the frame's live depth
+/// (`null`: the frame cannot say, e.g. no surface in view).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct QualityValues {
+    pub parallax_px: Option<f64>,
+    pub forward_overlap: Option<f64>,
+    pub unseen_fraction: Option<f64>,
+    pub views_per_point: Option<u32>,
+}
+
+/// The largest spacing meeting each target alone, m (`null`: not in force, or
+/// nothing in view bounds it).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct QualitySpacingM {
+    pub parallax: Option<f64>,
+    pub forward_overlap: Option<f64>,
+    pub unseen_fraction: Option<f64>,
+    pub views_per_point: Option<f64>,
+}
+
+/// What the quality model decided: the targets, each one's own spacing, and
+/// the values predicted at the spacing in force. Which target bound is
+/// `spacing.active_bound`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct QualityRecord {
+    pub targets: QualityTargets,
+    pub spacing_m: QualitySpacingM,
+    pub predicted: QualityValues,
+}
+
+impl QualityRecord {
+    /// From an estimate of the quality model, with the predictions taken at
+    /// `spacing_m` (the trigger's, which the rate limit may hold above the
+    /// estimate's own); `None` for other models.
+    pub fn from_estimate(e: &Estimate, spacing_m: f64) -> Option<QualityRecord> {
+        let q = e.quality?;
+        let t = q.targets;
+        let p = if e.spacing.chosen_m == Some(spacing_m) {
+            q
+        } else {
+            e.predict_at(spacing_m).unwrap_or(q)
+        };
+        let s = &e.spacing;
+        Some(QualityRecord {
+            targets: QualityTargets {
+                profile: t.profile.as_str().to_string(),
+                parallax_px: t.parallax_px,
+                forward_overlap: t.forward_overlap,
+                unseen_fraction_max: t.unseen_fraction_max,
+                views_per_point_min: t.views_per_point_min,
+            },
+            spacing_m: QualitySpacingM {
+                parallax: s.parallax_m,
+                forward_overlap: s.forward_overlap_m,
+                unseen_fraction: s.unseen_m,
+                views_per_point: s.views_m,
+            },
+            predicted: QualityValues {
+                parallax_px: p.parallax_px,
+                forward_overlap: p.forward_overlap,
+                unseen_fraction: p.unseen_fraction,
+                views_per_point: p.views_per_point,
+            },
+        })
+    }
+}
+
+/// The closed loop's measurement against the previous capture at the frame
+/// that captured (`[trigger] closed_loop`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ClosedLoopRecord {
+    /// Distance since the previous capture as the odometer measured it, m.
+    pub distance_m: f64,
+    /// Disparity span against the previous capture, px (rotation taken out).
+    pub parallax_px: Option<f64>,
+    /// Unseen fraction of the frame nearest the middle of the interval.
+    pub unseen_fraction: f64,
+    /// Fraction of this frame's surface inside the previous capture's frame.
+    pub in_view_fraction: f64,
+    /// The spacing the closed loop allowed (`null`: no target near).
+    pub spacing_m: Option<f64>,
+    /// `parallax` or `unseen_fraction`, when `spacing_m` is set.
+    pub bound: Option<String>,
+}
+
 /// Pinhole intrinsics of the captured image (pixels), as the exports need them.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -117,8 +219,13 @@ pub struct CaptureRecord {
     pub distance_since_last_m: Option<f64>,
     /// `None` when the occlusion term was not computed for this capture.
     pub occlusion: Option<Occlusion>,
-    /// Terms the estimator computed (`mmds`, `sspa`, `occlusion`, `coverage`, ...).
+    /// Terms the estimator computed (`parallax`, `visibility`, `views`, `mmds`, ...).
     pub terms: Vec<String>,
+    /// The quality model's targets, per-target spacings and predictions at
+    /// `spacing.chosen_m`; `None` for the other models or without an estimate.
+    pub quality: Option<QualityRecord>,
+    /// The closed loop's measurement (`None`: off, or the first capture).
+    pub closed_loop: Option<ClosedLoopRecord>,
     /// Sampling model in force (`occlusion`, `mmds`, `sspa`, `fixed`).
     pub model: String,
     pub capture_mode: CaptureMode,
@@ -225,6 +332,8 @@ pub(crate) mod tests {
                 degree: 0.0096,
             }),
             terms: vec!["mmds".into(), "occlusion".into(), "coverage".into()],
+            quality: None,
+            closed_loop: None,
             model: "occlusion".into(),
             capture_mode: CaptureMode::Frame,
             undersampled: false,

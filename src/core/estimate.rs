@@ -5,13 +5,14 @@
 use super::depth::{DepthImage, Intrinsics};
 use super::inverse::{fill_grid, percentile_ranks, InvGrid, Selector};
 use super::occlusion::{scan, BoundaryParams, BoundaryStats};
-use super::params::{Decimation, EstimatorParams, GainModel, Model};
+use super::params::{Decimation, EstimatorParams, GainModel, Model, Quality};
 use super::plane::{fit, PlaneFit};
 use super::score::{best, score, PitchScore};
 use super::spacing::{
     coverage_m, disparity_gain_px, mmds_m, occlusion_degree, occlusion_density_per_m,
     occlusion_term_m, sspa_m,
 };
+use super::visibility::{visibility, Visibility, VisibilityParams, DEFAULT_PHASES};
 use thiserror::Error;
 
 /// Why a frame gives no estimate. The caller falls back to a conservative spacing.
@@ -42,6 +43,15 @@ impl NoEstimate {
 /// The bound that decided the chosen spacing.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Bound {
+    /// `quality.parallax_px`: the disparity range per step.
+    Parallax,
+    /// `quality.forward_overlap` at the nearest depth.
+    ForwardOverlap,
+    /// `quality.unseen_fraction_max`: an in-between view's pixels neither
+    /// neighbour sees (the visibility term, occluders only).
+    Unseen,
+    /// `quality.views_per_point_min`: every visible point in `k` captures.
+    Views,
     Mmds,
     Sspa,
     Occlusion,
@@ -54,6 +64,10 @@ pub enum Bound {
 impl Bound {
     pub fn as_str(self) -> &'static str {
         match self {
+            Bound::Parallax => "parallax",
+            Bound::ForwardOverlap => "forward_overlap",
+            Bound::Unseen => "unseen_fraction",
+            Bound::Views => "views_per_point",
             Bound::Mmds => "mmds",
             Bound::Sspa => "sspa",
             Bound::Occlusion => "occlusion",
@@ -68,6 +82,15 @@ impl Bound {
 /// The terms computed for a frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct Terms {
+    /// The quality model's parallax target (MMDS's formula at `parallax_px`).
+    pub parallax: bool,
+    pub forward_overlap: bool,
+    /// The visibility sweep found occluders: the unseen-fraction bound and the
+    /// occluders' share of views per point are in force.
+    pub visibility: bool,
+    /// Views per point (from the sweep; without occluders it is the overlap
+    /// for `k` views at each sample's depth).
+    pub views: bool,
     pub mmds: bool,
     pub sspa: bool,
     pub occlusion: bool,
@@ -78,6 +101,10 @@ pub struct Terms {
 impl Terms {
     pub fn names(&self) -> Vec<&'static str> {
         [
+            (self.parallax, "parallax"),
+            (self.forward_overlap, "forward_overlap"),
+            (self.visibility, "visibility"),
+            (self.views, "views"),
             (self.mmds, "mmds"),
             (self.sspa, "sspa"),
             (self.occlusion, "occlusion"),
@@ -99,6 +126,15 @@ pub struct InvDepth {
 
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Spacings {
+    /// Largest spacing keeping the disparity range within `parallax_px`.
+    pub parallax_m: Option<f64>,
+    /// Largest spacing keeping `forward_overlap` at the nearest depth.
+    pub forward_overlap_m: Option<f64>,
+    /// Largest spacing keeping the unseen fraction within its target (`None`:
+    /// no occluder, or too few occluded samples to exceed it at any spacing).
+    pub unseen_m: Option<f64>,
+    /// Largest spacing keeping every visible sample in `k` captures.
+    pub views_m: Option<f64>,
     pub mmds_m: Option<f64>,
     pub sspa_m: Option<f64>,
     /// DESIGN's occlusion-aware spacing `min(MMDS, O_max/ρ)`; `None` without occlusion.
@@ -123,6 +159,33 @@ pub struct Occlusion {
     pub max_degree: f64,
 }
 
+/// The targets in force and what this frame predicts for each at the chosen
+/// spacing (`None`: the frame cannot say: no depth range, no surface sample).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct QualityPrediction {
+    pub targets: Quality,
+    /// Disparity range between neighbouring captures, px.
+    pub parallax_px: Option<f64>,
+    /// Forward overlap at the nearest depth, in `[0, 1]`.
+    pub forward_overlap: Option<f64>,
+    /// Unseen fraction of the in-between view, worst phase.
+    pub unseen_fraction: Option<f64>,
+    /// Captures the least-seen visible sample is in, whatever the phase.
+    pub views_per_point: Option<u32>,
+}
+
+/// What the visibility sweep saw (the term's inputs, for the log).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VisibilitySummary {
+    pub samples: u64,
+    pub occluded_samples: u64,
+    pub occluded_lines: u64,
+    /// Shortest visibility interval of any surface sample, m.
+    pub interval_min_m: Option<f64>,
+    /// Shortest interval an occluder cuts, m.
+    pub occluded_interval_min_m: Option<f64>,
+}
+
 #[derive(Debug, Clone, PartialEq)]
 pub struct Estimate {
     pub no_estimate: Option<NoEstimate>,
@@ -134,6 +197,11 @@ pub struct Estimate {
     pub pitch_rad: f64,
     pub inv_depth: Option<InvDepth>,
     pub occlusion: Option<Occlusion>,
+    pub visibility: Option<VisibilitySummary>,
+    pub quality: Option<QualityPrediction>,
+    /// What [`Estimate::predict_at`] needs: the disparity gain and half extent
+    /// (px) and the sweep's intervals (shared, not copied, with every clone).
+    basis: Option<PredictionBasis>,
     pub plane: Option<PlaneFit>,
     pub spacing: Spacings,
     pub active_bound: Option<Bound>,
@@ -160,6 +228,9 @@ impl Estimate {
             },
             inv_depth: None,
             occlusion: None,
+            visibility: None,
+            quality: None,
+            basis: None,
             plane: None,
             spacing: Spacings::default(),
             active_bound: None,
@@ -172,6 +243,28 @@ impl Estimate {
     pub fn is_ok(&self) -> bool {
         self.no_estimate.is_none()
     }
+
+    /// The quality model's predictions at another spacing (the trigger's, when
+    /// the rate limit holds it above the estimate's); `None` for other models.
+    pub fn predict_at(&self, spacing_m: f64) -> Option<QualityPrediction> {
+        let q = self.quality?;
+        let b = self.basis.as_ref()?;
+        Some(predict(
+            &q.targets,
+            self.inv_depth,
+            b.gain_px,
+            b.half_extent_px,
+            b.visibility.as_deref(),
+            spacing_m,
+        ))
+    }
+}
+
+#[derive(Debug, Clone, PartialEq)]
+struct PredictionBasis {
+    gain_px: f64,
+    half_extent_px: f64,
+    visibility: Option<std::sync::Arc<Visibility>>,
 }
 
 /// Calling errors (a frame and intrinsics that do not belong together); scene
@@ -357,7 +450,53 @@ impl Estimator {
                 est.terms.coverage = true;
                 est.spacing.mmds_m = mmds_m(gain, hi - lo, c_tex, dv);
                 est.spacing.coverage_m = coverage_m(p.overlap_min, geom.half_extent_px, gain, hi);
+                if p.model == Model::Quality {
+                    let q = &p.quality;
+                    if let Some(px) = q.parallax_px {
+                        est.terms.parallax = true;
+                        // MMDS's `2·Δv/(gain·Δw·c_tex)` with `2·Δv/c_tex = px`.
+                        est.spacing.parallax_m = mmds_m(gain, hi - lo, 1.0, 0.5 * px);
+                    }
+                    if let Some(fo) = q.forward_overlap {
+                        est.terms.forward_overlap = true;
+                        est.spacing.forward_overlap_m =
+                            coverage_m(fo, geom.half_extent_px, gain, hi);
+                    }
+                }
             }
+        }
+        let mut vis: Option<Visibility> = None;
+        if p.model == Model::Quality {
+            let v = visibility(
+                &self.grid,
+                &geom,
+                pitch_rad,
+                &VisibilityParams {
+                    unseen_fraction_max: p.quality.unseen_fraction_max,
+                    views_per_point_min: p.quality.views_per_point_min,
+                    phases: DEFAULT_PHASES,
+                    views_band: 0.5,
+                    ..VisibilityParams::default()
+                },
+            );
+            if v.samples > 0 {
+                est.terms.views = true;
+                est.spacing.views_m = v.spacing_views_m;
+            }
+            // No occluder on any line: the unseen fraction is 0 at every
+            // spacing the footprint allows, so the term is left out.
+            if v.has_occluders() {
+                est.terms.visibility = true;
+                est.spacing.unseen_m = v.spacing_unseen_m;
+            }
+            est.visibility = Some(VisibilitySummary {
+                samples: v.samples,
+                occluded_samples: v.occluded_samples,
+                occluded_lines: v.occluded_lines,
+                interval_min_m: v.interval_min_m,
+                occluded_interval_min_m: v.occluded_interval_min_m,
+            });
+            vis = Some(v);
         }
 
         let mut density = 0.0;
@@ -411,6 +550,13 @@ impl Estimator {
 
         let s = &est.spacing;
         let candidates: &[(Bound, Option<f64>)] = match p.model {
+            Model::Quality => &[
+                (Bound::Parallax, s.parallax_m),
+                (Bound::ForwardOverlap, s.forward_overlap_m),
+                (Bound::Coverage, s.coverage_m),
+                (Bound::Views, s.views_m),
+                (Bound::Unseen, s.unseen_m),
+            ],
             Model::Occlusion => &[
                 (Bound::Mmds, s.mmds_m),
                 (Bound::Occlusion, s.occlusion_m),
@@ -438,6 +584,21 @@ impl Estimator {
         };
         est.active_bound = Some(bound);
         est.spacing.chosen_m = Some(chosen);
+        if p.model == Model::Quality {
+            est.quality = Some(predict(
+                &p.quality,
+                est.inv_depth,
+                gain,
+                geom.half_extent_px,
+                vis.as_ref(),
+                chosen,
+            ));
+            est.basis = Some(PredictionBasis {
+                gain_px: gain,
+                half_extent_px: geom.half_extent_px,
+                visibility: vis.map(std::sync::Arc::new),
+            });
+        }
 
         if want_occlusion {
             est.occlusion = Some(Occlusion {
@@ -477,6 +638,34 @@ impl Estimator {
             }
         }
         Ok(est)
+    }
+}
+
+/// Each target's predicted value at `spacing_m`, from this frame.
+fn predict(
+    targets: &Quality,
+    range: Option<InvDepth>,
+    gain_px: f64,
+    half_extent_px: f64,
+    vis: Option<&Visibility>,
+    spacing_m: f64,
+) -> QualityPrediction {
+    let finite = |x: f64| x.is_finite().then_some(x);
+    QualityPrediction {
+        targets: *targets,
+        parallax_px: range.and_then(|r| finite(gain_px * spacing_m * (r.max_per_m - r.min_per_m))),
+        forward_overlap: range.and_then(|r| {
+            finite(1.0 - spacing_m * gain_px * r.max_per_m / (2.0 * half_extent_px))
+                .map(|o| o.clamp(0.0, 1.0))
+        }),
+        unseen_fraction: vis
+            .filter(|v| v.samples > 0)
+            .map(|v| v.unseen_at(spacing_m)),
+        views_per_point: vis.and_then(|v| v.interval_min_m).and_then(|l| {
+            // floor(L/b) captures fall in an interval of length L whatever the phase.
+            let n = (l / spacing_m).floor();
+            (n.is_finite() && n >= 0.0).then(|| n.min(u32::MAX as f64) as u32)
+        }),
     }
 }
 

@@ -4,6 +4,7 @@
 
 pub mod allowlist;
 pub mod backoff;
+pub mod closedloop;
 pub mod depth;
 pub mod distset;
 pub mod estimate;
@@ -21,8 +22,11 @@ pub mod trigger;
 pub mod visibility;
 
 pub use depth::{DepthData, DepthError, DepthImage, Intrinsics, IntrinsicsError, TrackAxis};
-pub use estimate::{estimate, Bound, Estimate, EstimateError, Estimator, NoEstimate};
-pub use params::{Decimation, EstimatorParams, Model, ParamError};
+pub use estimate::{
+    estimate, Bound, Estimate, EstimateError, Estimator, NoEstimate, QualityPrediction,
+    VisibilitySummary,
+};
+pub use params::{Decimation, EstimatorParams, Model, ParamError, Profile, Quality};
 
 #[cfg(test)]
 mod tests;

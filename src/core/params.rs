@@ -9,8 +9,12 @@ use thiserror::Error;
 /// Which sampling model decides the spacing.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Model {
-    /// Occlusion-aware ALF sampling (this work): `min(MMDS, O_max/ρ)`.
+    /// The largest spacing meeting every quality target the operator states
+    /// (`[quality]`, DESIGN §1): parallax, forward overlap, unseen fraction,
+    /// views per point.
     #[default]
+    Quality,
+    /// The paper's occlusion-aware ALF sampling: `min(MMDS, O_max/ρ)`.
     Occlusion,
     Mmds,
     Sspa,
@@ -21,6 +25,7 @@ pub enum Model {
 impl Model {
     pub fn as_str(self) -> &'static str {
         match self {
+            Model::Quality => "quality",
             Model::Occlusion => "occlusion",
             Model::Mmds => "mmds",
             Model::Sspa => "sspa",
@@ -29,12 +34,81 @@ impl Model {
     }
     pub fn parse(s: &str) -> Option<Model> {
         Some(match s {
+            "quality" => Model::Quality,
             "occlusion" => Model::Occlusion,
             "mmds" => Model::Mmds,
             "sspa" => Model::Sspa,
             "fixed" => Model::Fixed,
             _ => return None,
         })
+    }
+}
+
+/// A set of quality targets for a kind of reconstruction (DESIGN §1).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Profile {
+    /// Light-field / novel-view rendering: parallax 2 px, unseen 0.002, k = 2.
+    #[default]
+    Lightfield,
+    /// Photogrammetry and Gaussian splatting: parallax as 80 % forward overlap
+    /// at the nearest depth, unseen 0.002, k = 3.
+    Mapping,
+}
+
+impl Profile {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Profile::Lightfield => "lightfield",
+            Profile::Mapping => "mapping",
+        }
+    }
+    pub fn parse(s: &str) -> Option<Profile> {
+        Some(match s {
+            "lightfield" => Profile::Lightfield,
+            "mapping" => Profile::Mapping,
+            _ => return None,
+        })
+    }
+    /// The profile's targets, before any set directly.
+    pub fn targets(self) -> Quality {
+        match self {
+            Profile::Lightfield => Quality {
+                profile: self,
+                parallax_px: Some(2.0),
+                forward_overlap: None,
+                unseen_fraction_max: 0.002,
+                views_per_point_min: 2,
+            },
+            Profile::Mapping => Quality {
+                profile: self,
+                parallax_px: None,
+                forward_overlap: Some(0.8),
+                unseen_fraction_max: 0.002,
+                views_per_point_min: 3,
+            },
+        }
+    }
+}
+
+/// The quality targets in force (`[quality]`): the spacing is the largest that
+/// meets every one. A target that is `None` is not in force.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Quality {
+    pub profile: Profile,
+    /// Largest disparity range between neighbouring captures, px (Chai's
+    /// bound: `2·Δv/c_tex`).
+    pub parallax_px: Option<f64>,
+    /// Least forward overlap of neighbouring captures at the nearest depth.
+    pub forward_overlap: Option<f64>,
+    /// Largest fraction of an in-between view neither neighbour sees (1: off).
+    pub unseen_fraction_max: f64,
+    /// Captures every visible surface point must be in (1: coverage only).
+    pub views_per_point_min: u32,
+}
+
+impl Default for Quality {
+    fn default() -> Self {
+        Profile::default().targets()
     }
 }
 
@@ -74,6 +148,8 @@ pub struct ScoreParams {
 #[derive(Debug, Clone, PartialEq)]
 pub struct EstimatorParams {
     pub model: Model,
+    /// The targets of `Model::Quality` (other models ignore them).
+    pub quality: Quality,
     /// Compute SSPA even when the model does not need it (comparisons).
     pub with_sspa: bool,
     /// Compute the occlusion term even when the model does not need it.
@@ -110,7 +186,8 @@ pub struct EstimatorParams {
 impl Default for EstimatorParams {
     fn default() -> Self {
         EstimatorParams {
-            model: Model::Occlusion,
+            model: Model::Quality,
+            quality: Quality::default(),
             with_sspa: false,
             with_occlusion: false,
             score: Some(ScoreParams {
@@ -174,6 +251,44 @@ fn in_range(x: f64, lo: f64, hi: f64) -> bool {
 impl EstimatorParams {
     pub fn validate(&self) -> Result<(), ParamError> {
         let p = self;
+        let q = &p.quality;
+        if let Some(v) = q.parallax_px {
+            check(in_range(v, 1e-3, 1e4), "quality.parallax_px", || {
+                format!("must be in [0.001, 10000] px, got {v}")
+            })?;
+        }
+        if let Some(v) = q.forward_overlap {
+            check(in_range(v, 0.0, 0.99), "quality.forward_overlap", || {
+                format!("must be in [0, 0.99], got {v}")
+            })?;
+        }
+        check(
+            in_range(q.unseen_fraction_max, 1e-6, 1.0),
+            "quality.unseen_fraction_max",
+            || {
+                format!(
+                    "must be in [0.000001, 1] (1 turns it off), got {}",
+                    q.unseen_fraction_max
+                )
+            },
+        )?;
+        check(
+            (1..=100).contains(&q.views_per_point_min),
+            "quality.views_per_point_min",
+            || {
+                format!(
+                    "must be a whole number from 1 to 100, got {}",
+                    q.views_per_point_min
+                )
+            },
+        )?;
+        check(
+            p.model != Model::Quality || q.parallax_px.is_some() || q.forward_overlap.is_some(),
+            "quality.parallax_px",
+            || {
+                "the quality model needs parallax_px or forward_overlap: without either nothing bounds the spacing on open ground".into()
+            },
+        )?;
         check(
             p.occlusion_max > 0.0 && p.occlusion_max <= 1.0,
             "sampling.occlusion_max",

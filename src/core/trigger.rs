@@ -18,6 +18,9 @@ pub struct TriggerParams {
     pub fallback_spacing_m: f64,
     /// Capture this fraction before the spacing would be reached (0 = at it).
     pub margin: f64,
+    /// Also measure each frame against the last capture (`core::closedloop`)
+    /// and trigger on the tighter of the open and the closed loop.
+    pub closed_loop: bool,
 }
 
 impl Default for TriggerParams {
@@ -26,6 +29,7 @@ impl Default for TriggerParams {
             rate_max_hz: 30.0,
             fallback_spacing_m: 1.0,
             margin: 0.0,
+            closed_loop: false,
         }
     }
 }

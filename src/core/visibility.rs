@@ -28,6 +28,11 @@ pub struct VisibilityParams {
     pub phases: usize,
     /// Relative depth margin an occluder must clear (0: exact geometry).
     pub occluder_margin_rel: f64,
+    /// Middle fraction of the lines across track whose samples set the views
+    /// per point (1: all). Off the middle the 2-D line model leaves out
+    /// occluders beside the line, and points at the lateral edges are side
+    /// overlap's business, not the spacing's (the truth samples the middle half).
+    pub views_band: f64,
 }
 
 impl Default for VisibilityParams {
@@ -37,6 +42,7 @@ impl Default for VisibilityParams {
             views_per_point_min: 2,
             phases: DEFAULT_PHASES,
             occluder_margin_rel: 1e-3,
+            views_band: 1.0,
         }
     }
 }
@@ -364,9 +370,9 @@ pub struct Visibility {
     pub occluded_samples: u64,
     /// Lines with at least one occluded sample (0: the term is left out).
     pub occluded_lines: u64,
-    /// Shortest interval of any surface sample, m.
+    /// Shortest interval of any surface sample in the views band, m.
     pub interval_min_m: Option<f64>,
-    /// Shortest interval of an occluded sample, m.
+    /// Shortest interval of an occluded sample in the views band, m.
     pub occluded_interval_min_m: Option<f64>,
     /// Largest spacing whose unseen fraction is at most the target (`None`:
     /// no spacing exceeds it: too few occluded samples).
@@ -583,8 +589,16 @@ pub fn visibility(
     let rays = TrackRays::new(geom, &grid.along_idx, pitch_rad);
     let mut scratch = LineScratch::default();
     let (mut min_all, mut min_occ) = (f64::INFINITY, f64::INFINITY);
+    let band = if params.views_band.is_finite() {
+        params.views_band.clamp(0.0, 1.0)
+    } else {
+        1.0
+    };
+    let skip = ((grid.lines as f64 * (1.0 - band) * 0.5).floor() as usize).min(grid.lines / 2);
+    let in_band = skip..grid.lines - skip;
     for a in 0..grid.lines {
         let (mut surface, mut occluded) = (false, false);
+        let counts = in_band.contains(&a);
         sweep_line(
             grid.line(a),
             &rays,
@@ -594,11 +608,15 @@ pub fn visibility(
                 surface = true;
                 v.samples += 1;
                 let l = iv.length_m();
-                min_all = min_all.min(l);
+                if counts {
+                    min_all = min_all.min(l);
+                }
                 if iv.occluded() {
                     occluded = true;
                     v.occluded_samples += 1;
-                    min_occ = min_occ.min(l);
+                    if counts {
+                        min_occ = min_occ.min(l);
+                    }
                     v.occluded.push((iv.from_m as f32, iv.to_m as f32));
                 }
             },

@@ -1037,6 +1037,7 @@ impl Coordinator {
             unix_us: unix_us_at(t),
             local: &LocalFrame::new(home),
             estimate: self.last_estimate.as_deref(),
+            closed_loop: None,
             capture: &capture,
             model: self.config.estimator.model.as_str(),
             mode: CaptureMode::AutopilotDistance,

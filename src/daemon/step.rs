@@ -4,14 +4,19 @@
 //! tests run the same decision code.
 
 use crate::capture::{
-    image_file_name, Attitude, CameraIntrinsics, CaptureMode, CaptureRecord, ImageFormat,
-    Occlusion, Position, Spacing,
+    image_file_name, Attitude, CameraIntrinsics, CaptureMode, CaptureRecord, ClosedLoopRecord,
+    ImageFormat, Occlusion, Position, QualityRecord, Spacing,
 };
+use crate::core::closedloop::{ClosedLoop, ClosedLoopTargets, DepthSnapshot, Measure, View};
 use crate::core::geo::LocalFrame;
 use crate::core::pose::Pose;
 use crate::core::trigger::{Capture, Decision, Opportunity, Trigger, TriggerParams};
 use crate::core::{DepthImage, Estimate, Estimator, EstimatorParams, Intrinsics};
-use glam::EulerRot;
+use glam::{DMat3, EulerRot};
+
+/// Samples of a frame the closed loop keeps, about (a 640 × 480 frame every
+/// 8th pixel): its cost per frame is a few of these warps.
+const CLOSED_LOOP_SAMPLES: usize = 4800;
 
 /// What the pipeline needs besides the estimator and trigger settings.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -62,6 +67,8 @@ pub struct Pipeline {
     odometer_m: f64,
     last_ne_m: Option<[f64; 2]>,
     seq: u64,
+    /// `Some` when `[trigger] closed_loop` is on.
+    closed_loop: Option<ClosedLoop>,
 }
 
 impl Pipeline {
@@ -79,6 +86,7 @@ impl Pipeline {
             odometer_m: 0.0,
             last_ne_m: None,
             seq: 0,
+            closed_loop: trigger.closed_loop.then(ClosedLoop::default),
         }
     }
 
@@ -130,11 +138,42 @@ impl Pipeline {
             },
         };
         let speed = pose.vel_ned_mps.x.hypot(pose.vel_ned_mps.y);
+        let next_step_m = speed * self.params.frame_period_s;
+        // The closed loop: this frame against the last capture, in full 6-DoF.
+        let view = match (&self.closed_loop, f.depth) {
+            (Some(_), Some(depth)) if estimate.is_ok() => {
+                let step = ((depth.pixel_count() as f64 / CLOSED_LOOP_SAMPLES as f64)
+                    .sqrt()
+                    .ceil() as usize)
+                    .max(1);
+                Some(View {
+                    depth: DepthSnapshot::new(depth, f.intrinsics, step),
+                    cam_to_ned: DMat3::from_quat(pose.q)
+                        * DMat3::from_rotation_y(self.params.camera_mount_pitch_rad),
+                    pos_ned_m: pose.pos_ned_m,
+                })
+            }
+            _ => None,
+        };
+        let q = self.estimator.params().quality;
+        let targets = ClosedLoopTargets {
+            parallax_px: q.parallax_px,
+            unseen_fraction_max: q.unseen_fraction_max,
+        };
+        let measure = match (&mut self.closed_loop, &view) {
+            (Some(cl), Some(v)) => cl.on_frame(v.clone(), self.odometer_m, next_step_m, &targets),
+            _ => None,
+        };
+        let closed_m = measure.and_then(|m| m.spacing_m);
+        let spacing_m = match (estimate.spacing.chosen_m, closed_m) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        };
         let decision = self.trigger.update(&Opportunity {
             time_s: f.mono_ns as f64 * 1e-9,
             odometer_m: self.odometer_m,
-            next_step_m: speed * self.params.frame_period_s,
-            spacing_m: estimate.spacing.chosen_m,
+            next_step_m,
+            spacing_m,
             pose_fresh: true,
         });
         let capture = match decision {
@@ -151,6 +190,9 @@ impl Pipeline {
             }
         };
         self.seq += 1;
+        if let (Some(cl), Some(v)) = (&mut self.closed_loop, view) {
+            cl.on_capture(v, self.odometer_m);
+        }
         let record = capture_record(&RecordInputs {
             seq: self.seq,
             mono_ns: f.mono_ns,
@@ -159,6 +201,7 @@ impl Pipeline {
             unix_us: f.unix_us,
             local: &self.local,
             estimate: Some(&estimate),
+            closed_loop: measure.as_ref(),
             capture: &capture,
             model: self.estimator.params().model.as_str(),
             mode: self.params.capture_mode,
@@ -183,6 +226,8 @@ pub struct RecordInputs<'a> {
     pub local: &'a LocalFrame,
     /// The estimate in force (`None`: the fallback spacing decided).
     pub estimate: Option<&'a Estimate>,
+    /// The closed loop's measurement at this frame, if on.
+    pub closed_loop: Option<&'a Measure>,
     pub capture: &'a Capture,
     pub model: &'a str,
     pub mode: CaptureMode,
@@ -222,10 +267,21 @@ pub fn capture_record(r: &RecordInputs) -> CaptureRecord {
         spacing: Spacing {
             permissible_m: r.estimate.and_then(|e| e.spacing.permissible_m),
             chosen_m: r.capture.spacing_m,
-            active_bound: r
-                .estimate
-                .and_then(|e| e.active_bound)
-                .map_or_else(|| "fallback".to_string(), |b| b.as_str().to_string()),
+            active_bound: match (r.closed_loop, r.estimate.and_then(|e| e.spacing.chosen_m)) {
+                // The closed loop was tighter than the open loop's spacing.
+                (
+                    Some(Measure {
+                        spacing_m: Some(c),
+                        bound: Some(b),
+                        ..
+                    }),
+                    open,
+                ) if open.is_none_or(|o| *c < o) => format!("closed_loop_{b}"),
+                _ => r
+                    .estimate
+                    .and_then(|e| e.active_bound)
+                    .map_or_else(|| "fallback".to_string(), |b| b.as_str().to_string()),
+            },
         },
         distance_since_last_m: r.capture.distance_since_last_m,
         occlusion: r.estimate.and_then(|e| e.occlusion).map(|o| Occlusion {
@@ -234,6 +290,17 @@ pub fn capture_record(r: &RecordInputs) -> CaptureRecord {
         }),
         terms: r.estimate.map_or_else(Vec::new, |e| {
             e.terms.names().iter().map(|t| t.to_string()).collect()
+        }),
+        quality: r
+            .estimate
+            .and_then(|e| QualityRecord::from_estimate(e, r.capture.spacing_m)),
+        closed_loop: r.closed_loop.map(|m| ClosedLoopRecord {
+            distance_m: m.distance_m,
+            parallax_px: m.parallax_px,
+            unseen_fraction: m.unseen_fraction,
+            in_view_fraction: m.in_view_fraction,
+            spacing_m: m.spacing_m,
+            bound: m.bound.map(str::to_string),
         }),
         model: r.model.to_string(),
         capture_mode: r.mode,

@@ -1,0 +1,369 @@
+//! The closed loop (DESIGN §1, issue 13): instead of predicting from one frame,
+//! measure against the last capture. The capture's depth (decimated) is warped
+//! into each frame's full 6-DoF pose: the parallax span between the two and the
+//! fraction of an in-between frame that neither the capture nor the current
+//! frame sees (what the next capture would leave unseen if taken now). Pure:
+//! depth, poses and distances are arguments.
+
+use super::depth::{DepthData, DepthImage, Intrinsics};
+use glam::{DMat3, DVec3};
+
+/// Robust ends of the disparity distribution, as the evaluation's truth.
+pub const PARALLAX_PERCENTILES: (f64, f64) = (0.005, 0.995);
+
+/// Frames kept since the last capture; beyond it every other one is dropped
+/// (the in-between frame is then the nearest kept one to the middle).
+pub const KEPT_FRAMES_MAX: usize = 64;
+
+/// A depth frame sampled every `step` pixels, in metres (`+inf` sky, NaN invalid).
+#[derive(Debug, Clone, PartialEq)]
+pub struct DepthSnapshot {
+    pub step: usize,
+    pub cols: usize,
+    pub rows: usize,
+    pub focal_px: f64,
+    pub principal_px: (f64, f64),
+    pub width: usize,
+    pub height: usize,
+    pub depth_m: Vec<f32>,
+}
+
+impl DepthSnapshot {
+    pub fn new(image: &DepthImage, intr: &Intrinsics, step: usize) -> DepthSnapshot {
+        let step = step.max(1);
+        let (w, h) = (image.width(), image.height());
+        let (cols, rows) = (w.div_ceil(step), h.div_ceil(step));
+        let mut depth_m = Vec::with_capacity(cols * rows);
+        for r in (0..h).step_by(step) {
+            for c in (0..w).step_by(step) {
+                let k = r * w + c;
+                depth_m.push(match image.data() {
+                    DepthData::Z16 { data, scale_m } => match data[k] {
+                        0 | u16::MAX => f32::NAN,
+                        z => (z as f64 * scale_m) as f32,
+                    },
+                    DepthData::Metres(d) => {
+                        let z = d[k];
+                        if z > 0.0 {
+                            z
+                        } else {
+                            f32::NAN
+                        }
+                    }
+                });
+            }
+        }
+        DepthSnapshot {
+            step,
+            cols,
+            rows,
+            focal_px: intr.focal_px(),
+            principal_px: intr.principal_px(),
+            width: w,
+            height: h,
+            depth_m,
+        }
+    }
+
+    /// The four samples around the image point `(u, v)` (px, pixel `i`
+    /// spans `[i, i + 1)`), `None` outside the image.
+    fn around(&self, u: f64, v: f64) -> Option<[f32; 4]> {
+        if !(u >= 0.0 && v >= 0.0 && u < self.width as f64 && v < self.height as f64) {
+            return None;
+        }
+        let s = self.step as f64;
+        let (x, y) = (((u - 0.5) / s).max(0.0), ((v - 0.5) / s).max(0.0));
+        let (c0, r0) = (
+            (x.floor() as usize).min(self.cols - 1),
+            (y.floor() as usize).min(self.rows - 1),
+        );
+        let (c1, r1) = ((c0 + 1).min(self.cols - 1), (r0 + 1).min(self.rows - 1));
+        let d = |c: usize, r: usize| self.depth_m[r * self.cols + c];
+        Some([d(c0, r0), d(c1, r0), d(c0, r1), d(c1, r1)])
+    }
+}
+
+/// A snapshot where it was taken: OpenCV camera axes (x right, y down, z along
+/// the optical axis) → NED, and the camera's NED position.
+#[derive(Debug, Clone, PartialEq)]
+pub struct View {
+    pub depth: DepthSnapshot,
+    pub cam_to_ned: DMat3,
+    pub pos_ned_m: DVec3,
+}
+
+impl View {
+    /// The surface point of sample `(c, r)` in NED, or `None` (sky, invalid).
+    fn point(&self, c: usize, r: usize) -> Option<(DVec3, DVec3)> {
+        let z = self.depth.depth_m[r * self.depth.cols + c] as f64;
+        if !(z.is_finite() && z > 0.0) {
+            return None;
+        }
+        let (cx, cy) = self.depth.principal_px;
+        let f = self.depth.focal_px;
+        // Pixel centres at `i + 0.5`, as the intrinsics' principal point.
+        let (u, v) = (
+            (c * self.depth.step) as f64 + 0.5,
+            (r * self.depth.step) as f64 + 0.5,
+        );
+        let ray_cam = DVec3::new((u - cx) / f, (v - cy) / f, 1.0);
+        let ray = self.cam_to_ned * ray_cam;
+        Some((self.pos_ned_m + ray * z, ray))
+    }
+
+    /// Where a NED point lands in this view: `(u, v, depth)`, `None` behind it.
+    fn project(&self, p: DVec3) -> Option<(f64, f64, f64)> {
+        let q = self.cam_to_ned.transpose() * (p - self.pos_ned_m);
+        if q.z <= 1e-9 {
+            return None;
+        }
+        let (cx, cy) = self.depth.principal_px;
+        let f = self.depth.focal_px;
+        Some((cx + f * q.x / q.z, cy + f * q.y / q.z, q.z))
+    }
+
+    /// Whether this view sees `p`: inside the frame and not behind the surface
+    /// its depth shows there (2 % + 5 cm, the truth's tolerance). Four invalid
+    /// samples there are `Unknown`.
+    fn sees(&self, p: DVec3) -> Sight {
+        let Some((u, v, z)) = self.project(p) else {
+            return Sight::Outside;
+        };
+        let Some(ds) = self.depth.around(u, v) else {
+            return Sight::Outside;
+        };
+        if ds.iter().all(|d| d.is_nan()) {
+            return Sight::Unknown;
+        }
+        // Seen if any sample around the projection shows the point's surface:
+        // requiring more hides a strip along every depth edge (spurious
+        // captures); the cost is that disocclusions one sample wide go unseen
+        // (tests/closed_loop.rs measures both against the truth).
+        if ds
+            .iter()
+            .any(|&d| !d.is_nan() && d as f64 >= z - (0.02 * z + 0.05))
+        {
+            Sight::Seen
+        } else {
+            Sight::Hidden
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Sight {
+    Seen,
+    Hidden,
+    Outside,
+    Unknown,
+}
+
+/// The capture against a later frame.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Pair {
+    /// Disparity span (robust) over the frame's samples the capture sees, with
+    /// the rotation between the two taken out (disparity against the point at
+    /// infinity on the same ray), px.
+    pub parallax_span_px: Option<f64>,
+    /// Fraction of the frame's surface samples inside the capture's frame.
+    pub in_view_fraction: f64,
+    /// Fraction of the frame's in-view surface samples the capture does not see.
+    pub hidden_fraction: f64,
+    pub samples: u64,
+}
+
+/// The capture `a` against the frame `b`.
+pub fn pair(a: &View, b: &View) -> Pair {
+    let mut disp = Vec::with_capacity(b.depth.depth_m.len());
+    let (mut n, mut inside, mut hidden) = (0u64, 0u64, 0u64);
+    for r in 0..b.depth.rows {
+        for c in 0..b.depth.cols {
+            let Some((p, ray)) = b.point(c, r) else {
+                continue;
+            };
+            n += 1;
+            match a.sees(p) {
+                Sight::Outside | Sight::Unknown => {}
+                Sight::Hidden => {
+                    inside += 1;
+                    hidden += 1;
+                }
+                Sight::Seen => {
+                    inside += 1;
+                    // Against the same ray at infinity: rotation gives no parallax.
+                    if let (Some((u, v, _)), Some((ui, vi, _))) =
+                        (a.project(p), a.project(a.pos_ned_m + ray))
+                    {
+                        disp.push((u - ui).hypot(v - vi));
+                    }
+                }
+            }
+        }
+    }
+    Pair {
+        parallax_span_px: span(&mut disp),
+        in_view_fraction: if n > 0 { inside as f64 / n as f64 } else { 0.0 },
+        hidden_fraction: if inside > 0 {
+            hidden as f64 / inside as f64
+        } else {
+            0.0
+        },
+        samples: n,
+    }
+}
+
+fn span(d: &mut [f64]) -> Option<f64> {
+    if d.is_empty() {
+        return None;
+    }
+    let n = d.len();
+    let lo = ((n - 1) as f64 * PARALLAX_PERCENTILES.0).round() as usize;
+    let hi = ((n - 1) as f64 * PARALLAX_PERCENTILES.1).round() as usize;
+    let q_hi = *d.select_nth_unstable_by(hi, f64::total_cmp).1;
+    let q_lo = *d[..=hi]
+        .select_nth_unstable_by(lo.min(hi), f64::total_cmp)
+        .1;
+    Some(q_hi - q_lo)
+}
+
+/// Fraction of `mid`'s surface samples inside at least one of `a`, `b` that
+/// neither sees (the truth's `NEITHER / in_frustum`). Samples an invalid depth
+/// leaves undecided count as seen: missing depth must not trigger captures.
+pub fn unseen_fraction(mid: &View, a: &View, b: &View) -> f64 {
+    let (mut in_frustum, mut neither) = (0u64, 0u64);
+    for r in 0..mid.depth.rows {
+        for c in 0..mid.depth.cols {
+            let Some((p, _)) = mid.point(c, r) else {
+                continue;
+            };
+            let (sa, sb) = (a.sees(p), b.sees(p));
+            if sa == Sight::Outside && sb == Sight::Outside {
+                continue;
+            }
+            in_frustum += 1;
+            let seen = |s| matches!(s, Sight::Seen | Sight::Unknown);
+            if !seen(sa) && !seen(sb) {
+                neither += 1;
+            }
+        }
+    }
+    if in_frustum == 0 {
+        0.0
+    } else {
+        neither as f64 / in_frustum as f64
+    }
+}
+
+/// The targets the closed loop holds (the quality model's).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ClosedLoopTargets {
+    pub parallax_px: Option<f64>,
+    pub unseen_fraction_max: f64,
+}
+
+/// One frame's measurement against the last capture.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Measure {
+    /// Distance flown since the capture, m.
+    pub distance_m: f64,
+    pub parallax_px: Option<f64>,
+    /// Unseen fraction of the frame nearest the middle if the next capture
+    /// were taken now.
+    pub unseen_fraction: f64,
+    pub in_view_fraction: f64,
+    /// The largest spacing the measurements allow, extrapolated one frame
+    /// ahead (`None`: no target is near).
+    pub spacing_m: Option<f64>,
+    /// Which target sets `spacing_m`: `parallax` or `unseen_fraction`.
+    pub bound: Option<&'static str>,
+}
+
+/// The closed loop's state: the last capture and the frames since.
+#[derive(Debug, Clone, Default)]
+pub struct ClosedLoop {
+    capture: Option<(View, f64)>,
+    kept: Vec<(View, f64)>,
+    last: Option<Measure>,
+}
+
+impl ClosedLoop {
+    /// A capture was taken at `view`, at odometer reading `odometer_m`.
+    pub fn on_capture(&mut self, view: View, odometer_m: f64) {
+        self.capture = Some((view, odometer_m));
+        self.kept.clear();
+        self.last = None;
+    }
+
+    /// Measures `view` (at `odometer_m`) against the last capture; `next_step_m`
+    /// is the travel to the next frame. `None` before the first capture.
+    pub fn on_frame(
+        &mut self,
+        view: View,
+        odometer_m: f64,
+        next_step_m: f64,
+        t: &ClosedLoopTargets,
+    ) -> Option<Measure> {
+        let (cap, cap_odo) = self.capture.as_ref()?;
+        let d = (odometer_m - cap_odo).max(0.0);
+        let p = pair(cap, &view);
+        // The kept frame nearest the middle stands for the in-between view.
+        let mid = self
+            .kept
+            .iter()
+            .min_by(|x, y| {
+                ((x.1 - cap_odo) - 0.5 * d)
+                    .abs()
+                    .total_cmp(&((y.1 - cap_odo) - 0.5 * d).abs())
+            })
+            .map(|(v, _)| v);
+        let unseen = mid.map_or(0.0, |m| unseen_fraction(m, cap, &view));
+        let step = if next_step_m.is_finite() {
+            next_step_m.max(0.0)
+        } else {
+            0.0
+        };
+        let mut best: Option<(f64, &'static str)> = None;
+        let mut offer = |s: f64, name: &'static str| {
+            if s.is_finite() && best.is_none_or(|(b, _)| s < b) {
+                best = Some((s.max(0.0), name));
+            }
+        };
+        // Parallax grows in proportion to the baseline: where it reaches the target.
+        if let (Some(target), Some(px)) = (t.parallax_px, p.parallax_span_px) {
+            if px > 0.0 && d > 0.0 {
+                offer(d * target / px, "parallax");
+            }
+        }
+        // The unseen fraction is not linear (0 until the shortest interval):
+        // past the target, capture now; rising, extrapolate one frame ahead.
+        if unseen > t.unseen_fraction_max {
+            offer(d, "unseen_fraction");
+        } else if let Some(prev) = self.last {
+            let dd = d - prev.distance_m;
+            let rise = unseen - prev.unseen_fraction;
+            if dd > 0.0 && rise > 0.0 && unseen + rise / dd * step > t.unseen_fraction_max {
+                offer(d, "unseen_fraction");
+            }
+        }
+        let m = Measure {
+            distance_m: d,
+            parallax_px: p.parallax_span_px,
+            unseen_fraction: unseen,
+            in_view_fraction: p.in_view_fraction,
+            spacing_m: best.map(|b| b.0),
+            bound: best.map(|b| b.1),
+        };
+        self.last = Some(m);
+        self.kept.push((view, odometer_m));
+        if self.kept.len() > KEPT_FRAMES_MAX {
+            // Thin by halves, keeping the newest: bounded memory on long legs.
+            let n = self.kept.len();
+            let mut i = 0;
+            self.kept.retain(|_| {
+                i += 1;
+                (n - i) % 2 == 0
+            });
+        }
+        Some(m)
+    }
+}
