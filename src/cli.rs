@@ -368,7 +368,7 @@ fn run_tradeoff(a: TradeoffArgs) -> Result<ExitCode> {
             pitch_rad: a.pitch_deg.to_radians(),
         });
     }
-    let models = [Model::Mmds, Model::Sspa, Model::Occlusion];
+    let models = [Model::Mmds, Model::Sspa, Model::Occlusion, Model::Quality];
     let rows = tradeoff::measure(
         &frames,
         &cfg.estimator,

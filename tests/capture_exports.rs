@@ -49,6 +49,8 @@ fn record(seq: u64, lat: f64, lon: f64, alt: f64, yaw: f64, cam_pitch: f64) -> C
         distance_since_last_m: None,
         occlusion: None,
         terms: vec![],
+        quality: None,
+        closed_loop: None,
         model: "fixed".into(),
         capture_mode: CaptureMode::Frame,
         undersampled: false,

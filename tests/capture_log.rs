@@ -43,6 +43,8 @@ fn record(seq: u64, with_image: bool) -> CaptureRecord {
             degree: 0.002,
         }),
         terms: vec!["mmds".into(), "coverage".into()],
+        quality: None,
+        closed_loop: None,
         model: "occlusion".into(),
         capture_mode: if with_image {
             CaptureMode::Frame

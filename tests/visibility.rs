@@ -584,6 +584,7 @@ fn params() -> impl Strategy<Value = VisibilityParams> {
             views_per_point_min: k,
             phases,
             occluder_margin_rel: margin,
+            views_band: 1.0,
         })
 }
 

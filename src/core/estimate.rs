@@ -252,6 +252,7 @@ impl Estimate {
         Some(predict(
             &q.targets,
             self.inv_depth,
+            b.parallax_per_m,
             b.gain_px,
             b.half_extent_px,
             b.visibility.as_deref(),
@@ -262,6 +263,7 @@ impl Estimate {
 
 #[derive(Debug, Clone, PartialEq)]
 struct PredictionBasis {
+    parallax_per_m: Option<f64>,
     gain_px: f64,
     half_extent_px: f64,
     visibility: Option<std::sync::Arc<Visibility>>,
@@ -306,6 +308,8 @@ pub struct Estimator {
     grid: InvGrid,
     score_grid: InvGrid,
     selector: Selector,
+    /// Per-sample disparity per metre of baseline (the parallax target's scratch).
+    disparity: Vec<f32>,
 }
 
 impl Estimator {
@@ -316,6 +320,7 @@ impl Estimator {
             grid: InvGrid::default(),
             score_grid: InvGrid::default(),
             selector: Selector::default(),
+            disparity: Vec::new(),
         }
     }
 
@@ -437,6 +442,8 @@ impl Estimator {
         let dv = p.disparity_tolerance_px;
 
         let n_range = (self.grid.valid - if p.sky_is_scene { 0 } else { self.grid.sky }) as u64;
+        // Disparity range per metre of baseline, px/m (`None`: MMDS's `f·cos φ·Δw`).
+        let mut parallax_per_m: Option<f64> = None;
         if n_range > 0 {
             let ranks = percentile_ranks(n_range, p.percentile_low, p.percentile_high);
             if let Some([lo, hi]) = self.selector.select2(&self.grid.w, p.sky_is_scene, ranks) {
@@ -454,8 +461,22 @@ impl Estimator {
                     let q = &p.quality;
                     if let Some(px) = q.parallax_px {
                         est.terms.parallax = true;
-                        // MMDS's `2·Δv/(gain·Δw·c_tex)` with `2·Δv/c_tex = px`.
-                        est.spacing.parallax_m = mmds_m(gain, hi - lo, 1.0, 0.5 * px);
+                        est.spacing.parallax_m = if pitch_rad == 0.0 {
+                            // Nadir: every pixel's gain is f, so this is MMDS's
+                            // `2·Δv/(gain·Δw·c_tex)` with `2·Δv/c_tex = px`.
+                            mmds_m(gain, hi - lo, 1.0, 0.5 * px)
+                        } else {
+                            let surface = (self.grid.valid - self.grid.sky) as u64;
+                            parallax_per_m = disparity_span_per_m(
+                                &self.grid,
+                                &geom,
+                                pitch_rad,
+                                percentile_ranks(surface, p.percentile_low, p.percentile_high),
+                                &mut self.disparity,
+                                &mut self.selector,
+                            );
+                            parallax_per_m.and_then(|span| mmds_m(1.0, span, 1.0, 0.5 * px))
+                        };
                     }
                     if let Some(fo) = q.forward_overlap {
                         est.terms.forward_overlap = true;
@@ -585,15 +606,19 @@ impl Estimator {
         est.active_bound = Some(bound);
         est.spacing.chosen_m = Some(chosen);
         if p.model == Model::Quality {
+            let parallax_per_m =
+                parallax_per_m.or(est.inv_depth.map(|r| gain * (r.max_per_m - r.min_per_m)));
             est.quality = Some(predict(
                 &p.quality,
                 est.inv_depth,
+                parallax_per_m,
                 gain,
                 geom.half_extent_px,
                 vis.as_ref(),
                 chosen,
             ));
             est.basis = Some(PredictionBasis {
+                parallax_per_m,
                 gain_px: gain,
                 half_extent_px: geom.half_extent_px,
                 visibility: vis.map(std::sync::Arc::new),
@@ -641,10 +666,50 @@ impl Estimator {
     }
 }
 
+/// The robust span (the ranks of the depth range) of the disparity per metre
+/// of horizontal baseline over the surface samples. Off nadir the disparity
+/// of a sample at along-track offset `u` and across-track offset `v` (px) is
+/// `(b/z)·|(f·cos φ − u·sin φ, v·sin φ)|`: the camera also moves along its
+/// optical axis by `b·sin φ`, which MMDS's `f·cos φ` leaves out. The truth
+/// (`eval::truth`) measures this span, so the parallax target is held on it.
+fn disparity_span_per_m(
+    grid: &InvGrid,
+    geom: &super::depth::TrackGeometry,
+    pitch_rad: f64,
+    ranks: [u64; 2],
+    scratch: &mut Vec<f32>,
+    selector: &mut Selector,
+) -> Option<f64> {
+    let (s, c) = pitch_rad.sin_cos();
+    let axis = geom.focal_px * c;
+    let along: Vec<f64> = grid
+        .along_idx
+        .iter()
+        .map(|&i| axis - geom.v_px(i) * s)
+        .collect();
+    scratch.clear();
+    scratch.reserve(grid.w.len());
+    for a in 0..grid.lines {
+        let across = geom.across_px(grid.across_idx[a]) * s;
+        let across2 = across * across;
+        for (&w, &g_along) in grid.line(a).iter().zip(&along) {
+            // Sky (0) and invalid (negative) stay out of the selection.
+            scratch.push(if w > 0.0 {
+                ((g_along * g_along + across2).sqrt() * w as f64) as f32
+            } else {
+                w
+            });
+        }
+    }
+    let [lo, hi] = selector.select2(scratch, false, ranks)?;
+    Some((hi - lo) as f64)
+}
+
 /// Each target's predicted value at `spacing_m`, from this frame.
 fn predict(
     targets: &Quality,
     range: Option<InvDepth>,
+    parallax_per_m: Option<f64>,
     gain_px: f64,
     half_extent_px: f64,
     vis: Option<&Visibility>,
@@ -653,7 +718,7 @@ fn predict(
     let finite = |x: f64| x.is_finite().then_some(x);
     QualityPrediction {
         targets: *targets,
-        parallax_px: range.and_then(|r| finite(gain_px * spacing_m * (r.max_per_m - r.min_per_m))),
+        parallax_px: parallax_per_m.and_then(|d| finite(d * spacing_m)),
         forward_overlap: range.and_then(|r| {
             finite(1.0 - spacing_m * gain_px * r.max_per_m / (2.0 * half_extent_px))
                 .map(|o| o.clamp(0.0, 1.0))

@@ -13,8 +13,7 @@ mod report;
 mod tables;
 pub mod truth;
 
-use crate::core::visibility::{visibility_of_image, Visibility, VisibilityParams};
-use crate::core::{Estimate, Estimator, EstimatorParams, Model, TrackAxis};
+use crate::core::{Estimate, Estimator, EstimatorParams, Model};
 use crate::metrics::{psnr, ssim_map};
 use crate::render::{render, survey_camera, RenderOptions, SensorModel};
 use crate::scene::{Scene, SceneError};
@@ -212,11 +211,12 @@ pub struct ViewEstimate {
     pub density_per_m: f64,
     pub w_min: Option<f64>,
     pub w_max: Option<f64>,
-    /// The visibility term of issue 13 (`core::visibility`) on this view: the
-    /// largest spacing keeping its unseen fraction within the target, and the
-    /// one keeping every point of the middle half across track (as the truth
-    /// samples them) in k captures; `visibility_m` is the spacing of that
-    /// model, the tightest of these and MMDS (the 2 px parallax target).
+    /// The quality model of issue 13 ([`quality_params`]) on this view: the
+    /// visibility term's largest spacing keeping the unseen fraction within
+    /// the target, and the one keeping every point of the middle half across
+    /// track (as the truth samples them) in k captures; `visibility_m` is the
+    /// model's permissible spacing, the tightest of these and the 2 px
+    /// parallax target on the disparity span.
     pub vis_unseen_m: Option<f64>,
     pub vis_views_m: Option<f64>,
     pub visibility_m: Option<f64>,
@@ -454,11 +454,32 @@ pub fn eval_sensor() -> SensorModel {
     }
 }
 
+/// The quality model (issue 13) with the truth's targets: what the daemon
+/// runs by default, so the evaluation judges it. No coverage bound: the truth
+/// has no overlap target beyond views per point.
+pub fn quality_params() -> EstimatorParams {
+    let t = DEFAULT_TARGETS;
+    EstimatorParams {
+        model: Model::Quality,
+        quality: crate::core::Quality {
+            parallax_px: Some(t.parallax_px),
+            forward_overlap: None,
+            unseen_fraction_max: t.unseen_fraction_max,
+            views_per_point_min: t.views_per_point_min,
+            ..crate::core::Quality::default()
+        },
+        overlap_min: 0.0,
+        score: None,
+        ..EstimatorParams::default()
+    }
+}
+
+/// `ests`: one estimator per [`METHODS`], then the quality model's.
 fn view_estimate(
     ests: &mut [Estimator],
     img: &crate::core::DepthImage,
     g: &Geometry,
-) -> (ViewEstimate, Visibility) {
+) -> (ViewEstimate, Estimate) {
     let intr = crate::core::Intrinsics::from_focal_px(
         g.width,
         g.height,
@@ -467,7 +488,8 @@ fn view_estimate(
     )
     .expect("valid intrinsics");
     let mut v = ViewEstimate::default();
-    for (m, est) in ests.iter_mut().enumerate() {
+    let (methods, quality) = ests.split_at_mut(METHODS.len());
+    for (m, est) in methods.iter_mut().enumerate() {
         let e: Estimate = est
             .estimate_at(img, &intr, g.pitch_rad, 1)
             .expect("frame and intrinsics match");
@@ -480,36 +502,13 @@ fn view_estimate(
             v.w_max = e.inv_depth.map(|i| i.max_per_m);
         }
     }
-    let vp = VisibilityParams::default();
-    let full = visibility_of_image(img, &intr, TrackAxis::Rows, 1, g.pitch_rad, &vp);
-    v.vis_unseen_m = full.spacing_unseen_m;
-    let quarter = g.height / 4;
-    let rows = g.height - 2 * quarter;
-    if let (crate::core::DepthData::Z16 { data, scale_m }, true) = (img.data(), rows > 0) {
-        let middle = crate::core::DepthImage::new(
-            g.width,
-            rows,
-            crate::core::DepthData::Z16 {
-                data: data[quarter * g.width..(quarter + rows) * g.width].to_vec(),
-                scale_m: *scale_m,
-            },
-        )
-        .expect("a crop of a valid frame");
-        let mi = crate::core::Intrinsics::from_focal_px(
-            g.width,
-            rows,
-            g.focal_px,
-            Some((g.cx_px, g.cy_px - quarter as f64)),
-        )
-        .expect("valid intrinsics");
-        v.vis_views_m =
-            visibility_of_image(&middle, &mi, TrackAxis::Rows, 1, g.pitch_rad, &vp).spacing_views_m;
-    }
-    v.visibility_m = [v.mmds_m, v.vis_unseen_m, v.vis_views_m]
-        .into_iter()
-        .flatten()
-        .reduce(f64::min);
-    (v, full)
+    let q = quality[0]
+        .estimate_at(img, &intr, g.pitch_rad, 1)
+        .expect("frame and intrinsics match");
+    v.vis_unseen_m = q.spacing.unseen_m.filter(|_| q.is_ok());
+    v.vis_views_m = q.spacing.views_m.filter(|_| q.is_ok());
+    v.visibility_m = q.spacing.permissible_m.filter(|_| q.is_ok());
+    (v, q)
 }
 
 /// `w_opt` of an interval: the middle of the inverse-depth range both ends see.
@@ -817,10 +816,11 @@ pub fn evaluate_scene(
     // Views render in parallel over rows inside; estimates are cheap.
     let mut views = Vec::with_capacity(n);
     let mut estimates = Vec::with_capacity(n);
-    let mut visibilities: Vec<Visibility> = Vec::with_capacity(n);
+    let mut visibilities: Vec<Estimate> = Vec::with_capacity(n);
     let mut ests: Vec<Estimator> = METHODS
         .iter()
         .map(|&m| Estimator::new(method_params(m, 1.0)))
+        .chain([Estimator::new(quality_params())])
         .collect();
     for &x in &xs {
         let frame = render(
@@ -1092,8 +1092,14 @@ pub fn evaluate_scene(
                     .map(|e| e.visibility_m.unwrap_or(f64::INFINITY))
                     .collect(),
             ),
-            unseen_visibility_predicted: target_m
-                .and_then(|t| median(visibilities[a..=b].iter().map(|v| v.unseen_at(t)).collect())),
+            unseen_visibility_predicted: target_m.and_then(|t| {
+                median(
+                    visibilities[a..=b]
+                        .iter()
+                        .filter_map(|v| v.predict_at(t).and_then(|p| p.unseen_fraction))
+                        .collect(),
+                )
+            }),
         };
         segments.push(Segment {
             first: a,

@@ -2,7 +2,9 @@
 //! and the fixed-distance baseline, as defined in the module above.
 
 use super::{CaptureAt, TrackSample};
+use crate::capture::{CaptureRecord, QualityTargets};
 use serde::Serialize;
+use std::collections::BTreeMap;
 
 /// Relative tolerance of "within the spacing" (the same test everywhere).
 const REL_TOL: f64 = 1e-6;
@@ -55,6 +57,12 @@ pub struct Summary {
     pub data_ratio: Option<f64>,
     pub fallback_spacing_m: f64,
     pub step_limit_m: f64,
+    /// Captures per bound that set their spacing (`spacing.active_bound`).
+    pub captures_by_bound: BTreeMap<String, usize>,
+    /// Captures whose estimate used each term (`terms`).
+    pub captures_by_term: BTreeMap<String, usize>,
+    /// The quality targets in force (the quality model only).
+    pub quality_targets: Option<QualityTargets>,
 }
 
 /// One opportunity: a distinct position and the smallest spacing in force there.
@@ -243,6 +251,9 @@ pub fn summarize(
         data_ratio: None,
         fallback_spacing_m,
         step_limit_m,
+        captures_by_bound: BTreeMap::new(),
+        captures_by_term: BTreeMap::new(),
+        quality_targets: None,
     };
 
     for w in caps.windows(2) {
@@ -315,7 +326,69 @@ fn opt_n(v: Option<usize>) -> String {
     v.map_or_else(|| "n/a".to_string(), |x| x.to_string())
 }
 
+/// The bounds a quality target stands for, in `spacing.active_bound`.
+const TARGET_BOUNDS: [(&str, &[&str]); 4] = [
+    ("parallax", &["parallax", "closed_loop_parallax"]),
+    ("forward_overlap", &["forward_overlap"]),
+    (
+        "unseen_fraction",
+        &["unseen_fraction", "closed_loop_unseen_fraction"],
+    ),
+    ("views_per_point", &["views_per_point"]),
+];
+
 impl Summary {
+    /// Counts which bound set each capture's spacing and which terms each
+    /// capture's estimate used, from the manifest.
+    pub fn with_records(mut self, records: &[CaptureRecord]) -> Summary {
+        for r in records {
+            *self
+                .captures_by_bound
+                .entry(r.spacing.active_bound.clone())
+                .or_default() += 1;
+            for t in &r.terms {
+                *self.captures_by_term.entry(t.clone()).or_default() += 1;
+            }
+            if self.quality_targets.is_none() {
+                self.quality_targets = r.quality.as_ref().map(|q| q.targets.clone());
+            }
+        }
+        self
+    }
+
+    /// The targets in force that set no capture's spacing, with why not in
+    /// words an operator can act on.
+    pub fn never_bound(&self) -> Vec<String> {
+        let Some(t) = &self.quality_targets else {
+            return Vec::new();
+        };
+        let in_force = [
+            t.parallax_px.is_some(),
+            t.forward_overlap.is_some(),
+            true,
+            true,
+        ];
+        TARGET_BOUNDS
+            .iter()
+            .zip(in_force)
+            .filter(|((_, bounds), on)| {
+                *on && bounds
+                    .iter()
+                    .all(|b| !self.captures_by_bound.contains_key(*b))
+            })
+            .map(|((name, _), _)| match *name {
+                "unseen_fraction" => {
+                    let n = self.captures_by_term.get("visibility").copied().unwrap_or(0);
+                    format!(
+                        "unseen_fraction (occluders on {n} of {} captures; a tighter target set every spacing)",
+                        self.captures
+                    )
+                }
+                other => other.to_string(),
+            })
+            .collect()
+    }
+
     /// A few aligned lines for the terminal.
     pub fn render_text(&self) -> String {
         let worst = self
@@ -362,6 +435,38 @@ impl Summary {
             ),
             format!("{:<16}{range}", "spacing"),
         ]
+        .into_iter()
+        .chain(self.quality_targets.as_ref().map(|t| {
+            let opt = |x: Option<f64>| x.map_or("off".to_string(), |v| format!("{v}"));
+            format!(
+                "{:<16}{}: parallax {} px, forward overlap {}, unseen <= {}, views >= {}",
+                "targets",
+                t.profile,
+                opt(t.parallax_px),
+                opt(t.forward_overlap),
+                t.unseen_fraction_max,
+                t.views_per_point_min
+            )
+        }))
+        .chain((!self.captures_by_bound.is_empty()).then(|| {
+            let mut v: Vec<(&String, &usize)> = self.captures_by_bound.iter().collect();
+            v.sort_by(|a, b| b.1.cmp(a.1).then(a.0.cmp(b.0)));
+            let parts: Vec<String> = v.iter().map(|(b, n)| format!("{b} {n}")).collect();
+            format!("{:<16}{}", "bound by", parts.join(", "))
+        }))
+        .chain((!self.captures_by_term.is_empty()).then(|| {
+            let parts: Vec<String> = self
+                .captures_by_term
+                .iter()
+                .map(|(t, n)| format!("{t} {n}"))
+                .collect();
+            format!("{:<16}{}", "terms used", parts.join(", "))
+        }))
+        .chain({
+            let never = self.never_bound();
+            (!never.is_empty()).then(|| format!("{:<16}{}", "never bound", never.join("; ")))
+        })
+        .collect::<Vec<_>>()
         .join("\n")
     }
 
