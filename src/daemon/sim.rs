@@ -305,8 +305,9 @@ pub async fn run_sim_with(
     sc.survey.length_m = line_m;
     sc.survey.lanes = 1;
     sc.survey.speed_mps = args.speed_mps;
-    // The synthetic camera renders neither yaw nor roll: fly without wander,
-    // so the pictures and the logged attitude agree.
+    // Without wander, as while the synthetic camera rendered pitch only (it now
+    // renders the whole attitude, issue 14): the sim's documented figures were
+    // flown so.
     sc.survey.wind_m = 0.0;
     sc.survey.wind_deg = 0.0;
     sc.streams.attitude_quaternion = args.telemetry_hz;
