@@ -39,16 +39,21 @@ impl Camera {
     /// `(optical axis, image column axis, image row axis)` in the world.
     #[inline]
     pub fn basis(&self) -> ([f64; 3], [f64; 3], [f64; 3]) {
-        let (sr, cr) = self.roll_rad.sin_cos();
         let (sp, cp) = self.pitch_rad.sin_cos();
+        if self.roll_rad == 0.0 && self.yaw_rad == 0.0 {
+            // The pitch-only camera (every survey view): the general case below
+            // reduces to it, but [`Camera::ray`] (the reference renderer's and
+            // the bench baseline's) would pay two more sines per ray.
+            return ([sp, 0.0, -cp], [cp, 0.0, sp], [0.0, -1.0, 0.0]);
+        }
+        let (sr, cr) = self.roll_rad.sin_cos();
         let (sy, cy) = self.yaw_rad.sin_cos();
         // Camera → NED, Rz(yaw)·Ry(pitch)·Rx(roll), column by column.
         let x = [cy * cp, sy * cp, -sp];
         let y = [cy * sp * sr - sy * cr, sy * sp * sr + cy * cr, cp * sr];
         let z = [cy * sp * cr + sy * sr, sy * sp * cr - cy * sr, cp * cr];
-        // NED → world (north, west, up). `+ 0.0` turns −0 into 0, so at roll =
-        // yaw = 0 the basis has the bits of the pitch-only camera it extends.
-        let world = |v: [f64; 3]| [v[0] + 0.0, -v[1] + 0.0, -v[2] + 0.0];
+        // NED → world (north, west, up).
+        let world = |v: [f64; 3]| [v[0], -v[1], -v[2]];
         (world(z), world(x), world(y))
     }
 
