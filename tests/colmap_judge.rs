@@ -112,7 +112,11 @@ fn colmap_registers_a_short_sim_flight_where_its_transforms_say() {
     // loop): its first captures are the ones whose pictures disagreed with their logged
     // attitude while the synthetic camera rendered pitch only (issue 14).
     let yaws = geo_yaws_deg(&flight);
-    assert_eq!(yaws.len() as u64, total, "geo.txt gives every image an attitude");
+    assert_eq!(
+        yaws.len() as u64,
+        total,
+        "geo.txt gives every image an attitude"
+    );
     let turned = yaws
         .iter()
         .map(|y| angle_between_deg(*y, yaws[yaws.len() - 1]))
@@ -121,7 +125,11 @@ fn colmap_registers_a_short_sim_flight_where_its_transforms_say() {
         turned > 45.0,
         "the first captures are taken while turning onto the line: yaws {yaws:?}"
     );
-    assert_eq!(count("geo_images"), total, "the judge read geo.txt's angles");
+    assert_eq!(
+        count("geo_images"),
+        total,
+        "the judge read geo.txt's angles"
+    );
     for (what, key) in [
         ("transforms.json", "rotation_error_deg"),
         ("geo.txt", "geo_rotation_error_deg"),

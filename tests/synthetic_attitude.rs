@@ -120,7 +120,10 @@ fn centroid(rgb: &[u8], c: usize) -> ((f64, f64), f64) {
 fn markers_where_logged(scene: &Arc<Scene>, pose: Logged) -> [(f64, f64); 2] {
     let rgb = picture(scene, pose);
     let mut at = [(0.0, 0.0); 2];
-    for (k, (name, c, p)) in [("red", 0, RED_M), ("blue", 2, BLUE_M)].into_iter().enumerate() {
+    for (k, (name, c, p)) in [("red", 0, RED_M), ("blue", 2, BLUE_M)]
+        .into_iter()
+        .enumerate()
+    {
         let want = projected(scene, pose, p);
         // A marker near the border would be cut and its centroid pulled inwards.
         assert!(
@@ -129,7 +132,10 @@ fn markers_where_logged(scene: &Arc<Scene>, pose: Logged) -> [(f64, f64); 2] {
         );
         let (got, weight) = centroid(&rgb, c);
         // 2 m² at ~50 m is ~170 px of full colour difference (~200 each).
-        assert!(weight > 5_000.0, "{name} marker seen at {pose:?}: weight {weight}");
+        assert!(
+            weight > 5_000.0,
+            "{name} marker seen at {pose:?}: weight {weight}"
+        );
         let off = (got.0 - want.0).hypot(got.1 - want.1);
         assert!(
             off < 1.0,
@@ -163,7 +169,10 @@ fn a_level_camera_yawed_90_degrees_sees_the_markers_where_its_logged_pose_says()
     let north = markers_where_logged(&sc, level(OVER_M, 0.0));
     let east = markers_where_logged(&sc, level(OVER_M, 90.0));
     let (cx, cy) = intrinsics().principal_px();
-    assert!(north[0].0 > cx && north[0].1 < cy, "heading north: {north:?}");
+    assert!(
+        north[0].0 > cx && north[0].1 < cy,
+        "heading north: {north:?}"
+    );
     assert!(east[0].0 < cx && east[0].1 < cy, "heading east: {east:?}");
 }
 
@@ -212,7 +221,10 @@ fn flying_sideways_the_markers_move_along_the_image_rows() {
                 // Flat markers 39.95 m below: f·step/depth pixels per step, down the rows.
                 let want = f * step_m / 39.95;
                 assert!((q.0 - p.0).abs() < 1.0, "{prev:?} → {at:?}");
-                assert!((q.1 - p.1 - want).abs() < 1.0, "{prev:?} → {at:?}, want +{want:.1} rows");
+                assert!(
+                    (q.1 - p.1 - want).abs() < 1.0,
+                    "{prev:?} → {at:?}, want +{want:.1} rows"
+                );
             }
         }
         last = Some(at);

@@ -304,7 +304,7 @@ mod tests {
             [0.0, 5.0, 90.0, 20.0],
             [20.0, 0.0, 90.0, 0.0],
             [-35.0, 10.0, -150.0, 30.0],
-            [10.0, 80.0, 45.0, 10.0],  // looks straight ahead: pitch 90°
+            [10.0, 80.0, 45.0, 10.0],   // looks straight ahead: pitch 90°
             [30.0, -20.0, 200.0, 90.0], // a forward camera
         ];
         for [roll, pitch, yaw, mount] in cases {
@@ -336,9 +336,8 @@ mod tests {
         let pose = CameraPose::on_vehicle([1.0, 2.0, 3.0], [0.0, 0.1, 0.0], 0.3);
         let cam = pose.camera(Intrinsics::from_hfov_deg(8, 6, 69.0, None).unwrap());
         let (s, c) = (0.1f64 + 0.3).sin_cos();
-        let bits = |(a, u, v): ([f64; 3], [f64; 3], [f64; 3])| {
-            [a, u, v].map(|w| w.map(f64::to_bits))
-        };
+        let bits =
+            |(a, u, v): ([f64; 3], [f64; 3], [f64; 3])| [a, u, v].map(|w| w.map(f64::to_bits));
         // The basis the renderer had when it rendered pitch only.
         let pitch_only = ([s, 0.0, -c], [c, 0.0, s], [0.0, -1.0, 0.0]);
         assert_eq!(bits(cam.basis()), bits(pitch_only));
@@ -348,9 +347,7 @@ mod tests {
     fn frames_come_at_the_frame_rate_and_see_the_roof_then_the_ground() {
         let intr = Intrinsics::from_hfov_deg(40, 30, 69.0, None).unwrap();
         // Flying along +x at 10 m/s from x = 0 (over the roof) at 40 m.
-        let pose = |t: u64| {
-            Some(nadir([10.0 * t as f64 * 1e-9, 0.0, 40.0]))
-        };
+        let pose = |t: u64| Some(nadir([10.0 * t as f64 * 1e-9, 0.0, 40.0]));
         let mut src = at_10fps(intr, pose);
         let centre = |d: &DepthImage| match d.data() {
             DepthData::Z16 { data, .. } => data[15 * 40 + 20],
@@ -374,9 +371,7 @@ mod tests {
     #[test]
     fn no_pose_is_a_skipped_frame_not_a_stop() {
         let intr = Intrinsics::from_hfov_deg(8, 6, 69.0, None).unwrap();
-        let pose = |t: u64| {
-            (t != 100_000_000).then_some(nadir([0.0, 0.0, 40.0]))
-        };
+        let pose = |t: u64| (t != 100_000_000).then_some(nadir([0.0, 0.0, 40.0]));
         let mut src = at_10fps(intr, pose);
         assert!(src.next_depth().is_ok());
         assert!(matches!(
@@ -405,9 +400,7 @@ mod tests {
             }
         }
         let intr = Intrinsics::from_hfov_deg(8, 6, 69.0, None).unwrap();
-        let pose = |_| {
-            Some(nadir([0.0, 0.0, 40.0]))
-        };
+        let pose = |_| Some(nadir([0.0, 0.0, 40.0]));
         let mut src = SyntheticDepth::new(
             roof(),
             intr,
