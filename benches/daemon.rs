@@ -73,7 +73,9 @@ fn render_recording(scene: &Scene, dir: &Path) -> f64 {
     for i in 0..FRAMES {
         let camera = Camera {
             position_m: [x0 + i as f64 * STEP_M, s.y_m, s.altitude_m],
+            roll_rad: 0.0,
             pitch_rad: s.pitch_rad,
+            yaw_rad: 0.0,
             intrinsics: intr,
         };
         let frame = render(scene, &camera, &RenderOptions { supersample: 1 });

@@ -5,8 +5,10 @@ Runs pycolmap on the images a capture directory's transforms.json names: SIFT
 extraction with the known intrinsics (one shared PINHOLE camera), sequential
 matching and incremental mapping, all on the CPU with at most two threads. It
 then compares the reconstruction with the poses of transforms.json after a
-similarity transform (Umeyama, on the registered images) and, given sample
-points on occluded surfaces, says how many carry a triangulated point nearby.
+similarity transform (Umeyama, on the registered images): camera centres, and
+each image's rotation against transforms.json's and against geo.txt's (ODM's
+yaw, pitch, roll) when the directory has one; given sample points on occluded
+surfaces, it says how many carry a triangulated point nearby.
 
     scripts/colmap_judge.py CAPTURE_DIR [--work DIR] [--occluded-points FILE]
                             [--tolerance-m T] [--json OUT] [--refine-focal]
@@ -15,6 +17,9 @@ transforms.json is nerfstudio's (docs/capture-log.md): fl_x fl_y cx cy w h,
 frames[].file_path and frames[].transform_matrix, camera-to-world with the
 camera in OpenGL axes (x right, y up, z back) and the world in local ENU metres.
 The occluded points file is {"points_m": [[x, y, z], ...]} in the same frame.
+geo.txt is OpenDroneMap's (`EPSG:4326`, then `image lon lat alt yaw pitch roll`,
+degrees): the rotation is ODM's, Rz(yaw) Ry(pitch) Rx(roll) times its camera to
+body axes (`opendm/photo.py` compute_opk), NED, turned into ENU here.
 
 Exit 0 when it ran (also when few images register: the figures say so), 2 with
 one line on stderr for bad input, 1 if pycolmap itself fails.
@@ -23,10 +28,12 @@ The --json object: images_total, images_registered, registered_fraction,
 models (how many the mapper made; model_used is the largest), mean_reprojection_px,
 points3d, intrinsics {given, final, focal_refined}, track_length_m (first to last
 centre), similarity {scale, rotation, translation_m, roll_about_track_from},
-centre_error_m / centre_error_fraction / rotation_error_deg {median, max} over
-the registered images, completeness {points, tolerance_m, covered, fraction}
-(null without --occluded-points; 0 covered when nothing was reconstructed),
-per_image [{image, registered, centre_error_m, rotation_error_deg}], seconds.
+centre_error_m / centre_error_fraction / rotation_error_deg (against
+transforms.json) / geo_rotation_error_deg (against geo.txt; null without one)
+{median, max} over the registered images, geo_images (images with angles in
+geo.txt), completeness {points, tolerance_m, covered, fraction} (null without
+--occluded-points; 0 covered when nothing was reconstructed), per_image [{image,
+registered, centre_error_m, rotation_error_deg, geo_rotation_error_deg}], seconds.
 A figure that cannot be computed is null.
 """
 
@@ -92,6 +99,48 @@ def load_transforms(capture_dir):
     return intr, names, c2w
 
 
+def load_geo(capture_dir):
+    """{image: (yaw, pitch, roll) degrees} of geo.txt's lines with angles; None without the file."""
+    path = os.path.join(capture_dir, "geo.txt")
+    if not os.path.isfile(path):
+        return None
+    angles = {}
+    with open(path) as f:
+        lines = f.read().splitlines()
+    if not lines or lines[0].strip() != "EPSG:4326":
+        raise BadInput(f"{path}: the first line is not EPSG:4326")
+    for k, line in enumerate(lines[1:], start=2):
+        fields = line.split()
+        if len(fields) < 7:
+            continue  # position only: no attitude to judge
+        try:
+            angles[os.path.normpath(fields[0])] = tuple(float(v) for v in fields[4:7])
+        except ValueError as e:
+            raise BadInput(f"{path}: line {k}: {e}")
+    return angles
+
+
+def odm_rotation(yaw_deg, pitch_deg, roll_deg, np):
+    """Camera (OpenCV axes) to world (ENU) from geo.txt's angles, as ODM reads them."""
+    def rz(a):
+        c, s = math.cos(a), math.sin(a)
+        return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+    def ry(a):
+        c, s = math.cos(a), math.sin(a)
+        return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+    def rx(a):
+        c, s = math.cos(a), math.sin(a)
+        return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+    # ODM's image axes (x right, y up = top of the image, z back) to its body (FRD);
+    # the same swap takes NED to ENU.
+    swap = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+    cnb = rz(math.radians(yaw_deg)) @ ry(math.radians(pitch_deg)) @ rx(math.radians(roll_deg))
+    return swap @ cnb @ swap @ np.diag([1.0, -1.0, -1.0])
+
+
 def load_points(path):
     try:
         with open(path) as f:
@@ -131,8 +180,8 @@ def similarity(est_c, truth_c, est_r, truth_r, np):
     is taken from the camera orientations instead: the angle about the line, through
     the centres' mean, that best aligns them, fitted robustly (a grid search on the
     lower quartile of the angles, then least squares on the images within twice
-    it, repeated), so that images whose logged attitude is wrong (a sim flight's
-    turn onto the line, issue 14) do not drag it as long as a quarter are right.
+    it, repeated), so that images whose logged attitude is wrong do not drag it
+    as long as a quarter are right.
     The rotation errors then measure the orientations relative to each other,
     not their common roll.
     """
@@ -202,6 +251,7 @@ def run(args):
 
     capture_dir = os.path.abspath(args.capture_dir)
     intr, names, c2w = load_transforms(capture_dir)
+    geo = load_geo(capture_dir)
     occluded = load_points(args.occluded_points) if args.occluded_points else None
 
     pycolmap.logging.minloglevel = 2  # warnings and errors only
@@ -309,6 +359,8 @@ def run(args):
             "centre_error_m": stats([]),
             "centre_error_fraction": stats([]),
             "rotation_error_deg": stats([]),
+            "geo_rotation_error_deg": stats([]),
+            "geo_images": None if geo is None else sum(n in geo for n in names),
             "completeness": None,
             "per_image": [],
             "seconds": {},
@@ -317,6 +369,7 @@ def run(args):
         # OpenGL camera axes (x right, y up, z back) to COLMAP's OpenCV (x right, y down, z forward).
         flip = np.diag([1.0, -1.0, -1.0])
         truth_r = [np.array([row[:3] for row in m[:3]]) @ flip for m in c2w]
+        geo_r = [odm_rotation(*geo[n], np) if geo and n in geo else None for n in names]
         report["track_length_m"] = float(np.linalg.norm(truth_c[-1] - truth_c[0]))
 
         by_name, per = {}, {}  # registered images by name; their errors by index
@@ -356,7 +409,14 @@ def run(args):
                     [float(e) / length for e in errs] if length > 0 else []
                 )
                 report["rotation_error_deg"] = stats(rot_errs)
-                per = {i: (float(errs[j]), rot_errs[j]) for j, i in enumerate(reg)}
+                geo_errs = {
+                    i: rotation_angle_deg(geo_r[i].T @ (r @ w), np)
+                    for i, w in zip(reg, world_from_cam)
+                    if geo_r[i] is not None
+                }
+                if geo is not None:
+                    report["geo_rotation_error_deg"] = stats(list(geo_errs.values()))
+                per = {i: (float(errs[j]), rot_errs[j], geo_errs.get(i)) for j, i in enumerate(reg)}
             if occluded is not None:
                 comp = {
                     "points": len(occluded),
@@ -386,6 +446,7 @@ def run(args):
                     "registered": n in by_name,
                     "centre_error_m": per[i][0] if i in per else None,
                     "rotation_error_deg": per[i][1] if i in per else None,
+                    "geo_rotation_error_deg": per[i][2] if i in per else None,
                 }
             )
         report["seconds"] = {
@@ -441,6 +502,12 @@ def print_table(r, out):
         f"  ({fmt(cf['median'] and 100 * cf['median'], '.2f')} / {fmt(cf['max'] and 100 * cf['max'], '.2f')} % of track)",
     )
     row("rotation error median / max", f"{fmt(re_['median'], '.2f')} / {fmt(re_['max'], '.2f')} deg")
+    if r["geo_images"] is not None:
+        ge = r["geo_rotation_error_deg"]
+        row(
+            "geo.txt rotation med / max",
+            f"{fmt(ge['median'], '.2f')} / {fmt(ge['max'], '.2f')} deg ({r['geo_images']} images with angles)",
+        )
     c = r["completeness"]
     if c is not None:
         row(

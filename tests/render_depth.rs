@@ -35,7 +35,9 @@ texture = {{ colour = [0.4, 0.5, 0.3], contrast = 0.4, cutoff_per_m = 2.0, seed 
 fn camera(x: f64, z: f64, pitch_deg: f64, w: usize, h: usize) -> Camera {
     Camera {
         position_m: [x, 0.0, z],
+        roll_rad: 0.0,
         pitch_rad: pitch_deg.to_radians(),
+        yaw_rad: 0.0,
         intrinsics: Intrinsics::from_hfov_deg(w, h, 69.0, None).unwrap(),
     }
 }
@@ -381,7 +383,9 @@ fn the_fast_renderer_matches_the_reference_from_awkward_viewpoints() {
     for (k, (position_m, pitch_rad)) in cams.into_iter().enumerate() {
         let cam = Camera {
             position_m,
+            roll_rad: 0.0,
             pitch_rad,
+            yaw_rad: 0.0,
             intrinsics: intr,
         };
         for ss in [1, 3] {

@@ -23,22 +23,21 @@ pub(crate) fn intrinsics(s: &SourceConfig) -> Result<Intrinsics, String> {
         .map_err(|e| format!("intrinsics: {e}"))
 }
 
-/// The synthetic camera at a local NED position: the scene's survey line
-/// starts at its `start_x_m` and heads north along +x; west is +y; up is +z.
+/// The synthetic camera at a local NED position and the vehicle's roll, pitch,
+/// yaw (`rpy_rad`): the scene's survey line starts at its `start_x_m` and heads
+/// north along +x; west is +y; up is +z.
 pub fn scene_camera_pose(
     scene: &Scene,
     mount_pitch_rad: f64,
     ned: [f64; 3],
-    pitch_rad: f64,
+    rpy_rad: [f64; 3],
 ) -> CameraPose {
-    CameraPose {
-        position_m: [
-            scene.survey.start_x_m + ned[0],
-            scene.survey.y_m - ned[1],
-            -ned[2],
-        ],
-        pitch_rad: mount_pitch_rad + pitch_rad,
-    }
+    let position_m = [
+        scene.survey.start_x_m + ned[0],
+        scene.survey.y_m - ned[1],
+        -ned[2],
+    ];
+    CameraPose::on_vehicle(position_m, rpy_rad, mount_pitch_rad)
 }
 
 /// The synthetic camera's pose from the telemetry ([`scene_camera_pose`]), or
@@ -52,12 +51,12 @@ pub fn telemetry_pose(
     move |t: u64| {
         let link = slot.get()?;
         let p = rt.block_on(link.pose_at_mono_ns(t)).ok()?;
-        let (_, pitch, _) = p.q.to_euler(glam::EulerRot::ZYX);
+        let (yaw, pitch, roll) = p.q.to_euler(glam::EulerRot::ZYX);
         Some(scene_camera_pose(
             &scene,
             mount_pitch_rad,
             p.pos_ned_m.to_array(),
-            pitch,
+            [roll, pitch, yaw],
         ))
     }
 }

@@ -10,7 +10,7 @@ use crate::config::{Config, SimPose};
 use crate::core::{Intrinsics, Model};
 use crate::link::{mono_ns, LinkHandle};
 use crate::notify::Notifier;
-use crate::render::{Camera, SensorModel};
+use crate::render::SensorModel;
 use crate::scene::Scene;
 use crate::simreport::{self, CaptureAt, DaemonSample, Summary, TrackSample, TruthPose};
 use crate::source::synthetic::{CameraPose, MonotonicClock, SyntheticColor, SyntheticDepth};
@@ -305,8 +305,9 @@ pub async fn run_sim_with(
     sc.survey.length_m = line_m;
     sc.survey.lanes = 1;
     sc.survey.speed_mps = args.speed_mps;
-    // The synthetic camera renders neither yaw nor roll: fly without wander,
-    // so the pictures and the logged attitude agree.
+    // Without wander, as while the synthetic camera rendered pitch only (it now
+    // renders the whole attitude, issue 14): the sim's documented figures were
+    // flown so.
     sc.survey.wind_m = 0.0;
     sc.survey.wind_deg = 0.0;
     sc.streams.attitude_quaternion = args.telemetry_hz;
@@ -367,7 +368,7 @@ pub async fn run_sim_with(
                         &scene,
                         mount,
                         tr.pos_ned_m,
-                        tr.rpy_deg[1].to_radians(),
+                        tr.rpy_deg.map(f64::to_radians),
                     ))
                 })
             }
@@ -576,16 +577,12 @@ fn truth_track(
             scene,
             config.depth.mount_pitch_rad,
             tr.pos_ned_m,
-            tr.rpy_deg[1].to_radians(),
+            tr.rpy_deg.map(f64::to_radians),
         );
         poses.push(TruthPose {
             mono_ns: s.mono_ns,
             along_m: along,
-            camera: Camera {
-                position_m: cp.position_m,
-                pitch_rad: cp.pitch_rad,
-                intrinsics: intr,
-            },
+            camera: cp.camera(intr),
             north_m: tr.pos_ned_m[0],
             east_m: tr.pos_ned_m[1],
         });

@@ -172,7 +172,7 @@ mod tests {
     }
 
     /// Every primitive a ray through a pixel meets at all (not only the
-    /// nearest) is listed in that pixel's tile.
+    /// nearest) is listed in that pixel's tile, at any attitude.
     #[test]
     fn no_primitive_a_ray_meets_is_left_out_of_its_tile() {
         let sc = district();
@@ -191,7 +191,9 @@ mod tests {
                     -30.0 + 60.0 * rnd(),
                     1.0 + 120.0 * rnd(),
                 ],
+                roll_rad: (-60.0 + 120.0 * rnd()).to_radians(),
                 pitch_rad: (-80.0 + 160.0 * rnd()).to_radians(),
+                yaw_rad: (-180.0 + 360.0 * rnd()).to_radians(),
                 intrinsics: Intrinsics::from_hfov_deg(64, 48, 30.0 + 120.0 * rnd(), None).unwrap(),
             };
             let pin = Pinhole::new(&cam);

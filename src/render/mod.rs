@@ -1,8 +1,11 @@
 //! Ray casting of a [`Scene`]: colour (supersampled, so the ground truth has no
 //! aliasing of its own) and metric depth along the optical axis (pixel centre,
 //! `+inf` for sky) for any pose and intrinsics. Deterministic; parallel over
-//! rows. Camera convention as in `crate::synth`: optical axis `(sin φ, 0, −cos φ)`,
-//! along-track image axis (columns) `(cos φ, 0, sin φ)`, across (rows) `(0, −1, 0)`.
+//! rows. Camera convention as in `crate::synth` and `crate::capture::export`: at
+//! roll = yaw = 0 and pitch φ the optical axis is `(sin φ, 0, −cos φ)`, the image
+//! columns run along `(cos φ, 0, sin φ)` and the rows along `(0, −1, 0)`; roll, pitch
+//! and yaw turn that frame as an autopilot's attitude turns its body (world x north,
+//! y west, z up).
 //! Invariant: [`render`] finds the same nearest surface, with the same depth
 //! bits, as [`trace`] over the whole scene ([`render_reference`] is that).
 
@@ -13,21 +16,45 @@ use crate::scene::{Scene, Texture};
 use bins::Bins;
 use rayon::prelude::*;
 
-/// Where the camera is and how it looks.
+/// Where the camera is and how it looks: the ZYX Euler angles of the camera's
+/// own frame (x along the image columns, y along the rows, z the optical axis),
+/// which at zero is a vehicle's FRD body flying north with a nadir camera. A
+/// camera on a vehicle composes the vehicle's attitude with its mount first
+/// (`crate::source::synthetic::CameraPose::on_vehicle`).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Camera {
     pub position_m: [f64; 3],
-    /// 0 = nadir, positive = tilted forward (towards `+x`).
+    /// Rotation about the image columns: positive turns the view towards `+y`
+    /// (a vehicle rolling right, heading north, looks west).
+    pub roll_rad: f64,
+    /// 0 = nadir, positive = tilted forward (towards `+x` at yaw 0).
     pub pitch_rad: f64,
+    /// Heading of the image columns, clockwise from `+x` seen from above (from
+    /// north towards east, i.e. `−y`), as an autopilot's yaw.
+    pub yaw_rad: f64,
     pub intrinsics: Intrinsics,
 }
 
 impl Camera {
-    /// `(optical axis, along-track image axis, across-track image axis)`.
+    /// `(optical axis, image column axis, image row axis)` in the world.
     #[inline]
     pub fn basis(&self) -> ([f64; 3], [f64; 3], [f64; 3]) {
-        let (s, c) = self.pitch_rad.sin_cos();
-        ([s, 0.0, -c], [c, 0.0, s], [0.0, -1.0, 0.0])
+        let (sp, cp) = self.pitch_rad.sin_cos();
+        if self.roll_rad == 0.0 && self.yaw_rad == 0.0 {
+            // The pitch-only camera (every survey view): the general case below
+            // reduces to it, but [`Camera::ray`] (the reference renderer's and
+            // the bench baseline's) would pay two more sines per ray.
+            return ([sp, 0.0, -cp], [cp, 0.0, sp], [0.0, -1.0, 0.0]);
+        }
+        let (sr, cr) = self.roll_rad.sin_cos();
+        let (sy, cy) = self.yaw_rad.sin_cos();
+        // Camera → NED, Rz(yaw)·Ry(pitch)·Rx(roll), column by column.
+        let x = [cy * cp, sy * cp, -sp];
+        let y = [cy * sp * sr - sy * cr, sy * sp * sr + cy * cr, cp * sr];
+        let z = [cy * sp * cr + sy * sr, sy * sp * cr - cy * sr, cp * cr];
+        // NED → world (north, west, up).
+        let world = |v: [f64; 3]| [v[0], -v[1], -v[2]];
+        (world(z), world(x), world(y))
     }
 
     /// Ray direction through continuous pixel position (`col`, `row`), pixel
@@ -532,7 +559,9 @@ pub fn survey_camera(scene: &Scene, x_m: f64, width: usize, height: usize) -> Ca
     let s = &scene.survey;
     Camera {
         position_m: [x_m, s.y_m, s.altitude_m],
+        roll_rad: 0.0,
         pitch_rad: s.pitch_rad,
+        yaw_rad: 0.0,
         intrinsics: Intrinsics::from_hfov_deg(width, height, s.hfov_deg, None)
             .expect("scene validation keeps the field of view in range"),
     }

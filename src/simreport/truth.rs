@@ -109,7 +109,9 @@ texture = { colour = [0.7, 0.6, 0.6], contrast = 0.3, seed = 2 }
                     along_m: x + 10.0,
                     camera: Camera {
                         position_m: [x, 0.0, 40.0],
+                        roll_rad: 0.0,
                         pitch_rad: 0.1,
+                        yaw_rad: 0.0,
                         intrinsics: intr,
                     },
                     north_m: x + 10.0,

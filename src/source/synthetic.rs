@@ -4,17 +4,77 @@
 //! is injected, so tests and replays run without waiting.
 
 use super::{ColorImage, DepthSource, FrameAt, SourceError, Stamped};
+use crate::capture::export::{body_to_ned, camera_to_body};
 use crate::core::{DepthImage, Intrinsics};
 use crate::render::{render, render_depth, Camera, Frame, RenderOptions, SensorModel};
 use crate::scene::Scene;
+use glam::DMat3;
 use std::sync::Arc;
 
 /// Where the camera is at an instant (metres, world frame of the scene) and
-/// its pitch (0 = nadir, positive = forward).
+/// how it is turned: the camera's own roll, pitch and yaw as [`Camera`] takes
+/// them (all 0 = nadir, image columns towards `+x`).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CameraPose {
     pub position_m: [f64; 3],
+    pub roll_rad: f64,
     pub pitch_rad: f64,
+    pub yaw_rad: f64,
+}
+
+impl CameraPose {
+    /// The camera on a vehicle at `position_m` with the autopilot's roll, pitch,
+    /// yaw (`rpy_rad`, ZYX) and the camera tilted forward by `mount_pitch_rad`
+    /// about the vehicle's right axis: the composition the exports write
+    /// (`capture::export::camera_gl_to_ned`), so a picture matches its logged pose.
+    pub fn on_vehicle(position_m: [f64; 3], rpy_rad: [f64; 3], mount_pitch_rad: f64) -> Self {
+        let [roll, pitch, yaw] = rpy_rad;
+        if roll == 0.0 {
+            // Rz(ψ)·Ry(θ)·Ry(m) = Rz(ψ)·Ry(θ + m): exact, and the pitch-only
+            // poses keep the bits they had before roll and yaw were rendered.
+            return CameraPose {
+                position_m,
+                roll_rad: 0.0,
+                pitch_rad: pitch + mount_pitch_rad,
+                yaw_rad: yaw,
+            };
+        }
+        let m = body_to_ned(roll, pitch, yaw) * camera_to_body(mount_pitch_rad);
+        let [roll_rad, pitch_rad, yaw_rad] = zyx_rad(m);
+        CameraPose {
+            position_m,
+            roll_rad,
+            pitch_rad,
+            yaw_rad,
+        }
+    }
+
+    /// The renderer's camera at this pose.
+    pub fn camera(&self, intrinsics: Intrinsics) -> Camera {
+        Camera {
+            position_m: self.position_m,
+            roll_rad: self.roll_rad,
+            pitch_rad: self.pitch_rad,
+            yaw_rad: self.yaw_rad,
+            intrinsics,
+        }
+    }
+}
+
+/// `[roll, pitch, yaw]` with `m = Rz(yaw)·Ry(pitch)·Rx(roll)`. Looking straight
+/// along ±x (pitch ±90°) only the difference of yaw and roll is defined: roll
+/// is then 0 and yaw takes the whole turn.
+fn zyx_rad(m: DMat3) -> [f64; 3] {
+    let pitch = (-m.x_axis.z).clamp(-1.0, 1.0).asin();
+    // cos(pitch) below this leaves roll and yaw to rounding.
+    if m.x_axis.x.hypot(m.x_axis.y) < 1e-9 {
+        return [0.0, pitch, (-m.y_axis.x).atan2(m.y_axis.y)];
+    }
+    [
+        m.y_axis.z.atan2(m.z_axis.z),
+        pitch,
+        m.x_axis.y.atan2(m.x_axis.x),
+    ]
 }
 
 /// The pose at a monotonic instant; `None` when unknown (stale telemetry).
@@ -108,11 +168,7 @@ impl<P: PoseAt, C: Clock> DepthSource for SyntheticDepth<P, C> {
                 reason: "no pose at the frame's instant".into(),
             });
         };
-        let camera = Camera {
-            position_m: pose.position_m,
-            pitch_rad: pose.pitch_rad,
-            intrinsics: self.intrinsics,
-        };
+        let camera = pose.camera(self.intrinsics);
         let frame = Frame {
             width: self.intrinsics.width(),
             height: self.intrinsics.height(),
@@ -179,11 +235,7 @@ fn lower_this_threads_priority() {
 impl<P: PoseAt> FrameAt for SyntheticColor<P> {
     fn frame_at(&mut self, mono_ns: u64) -> Option<Stamped<ColorImage>> {
         let pose = self.pose.pose_at(mono_ns)?;
-        let camera = Camera {
-            position_m: pose.position_m,
-            pitch_rad: pose.pitch_rad,
-            intrinsics: self.intrinsics,
-        };
+        let camera = pose.camera(self.intrinsics);
         let frame = match &self.pool {
             Some(pool) => pool.install(|| render(&self.scene, &camera, &self.options)),
             None => render(&self.scene, &camera, &self.options),
@@ -231,21 +283,71 @@ mod tests {
         )
     }
 
+    fn nadir(position_m: [f64; 3]) -> CameraPose {
+        CameraPose::on_vehicle(position_m, [0.0; 3], 0.0)
+    }
+
     fn roof() -> Arc<Scene> {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/roof.toml");
         Arc::new(Scene::load(&path).expect("the roof scene parses"))
+    }
+
+    /// The renderer's basis for a pose on a vehicle is the exports' camera →
+    /// NED rotation, carried into the scene's (north, west, up).
+    #[test]
+    fn a_pose_on_a_vehicle_looks_as_the_exports_say() {
+        use crate::capture::export::{camera_gl_to_ned, GL_TO_CV};
+        use crate::capture::record::Attitude;
+        let intr = Intrinsics::from_hfov_deg(8, 6, 69.0, None).unwrap();
+        let cases = [
+            [0.0, 0.0, 0.0, 0.0],
+            [0.0, 5.0, 90.0, 20.0],
+            [20.0, 0.0, 90.0, 0.0],
+            [-35.0, 10.0, -150.0, 30.0],
+            [10.0, 80.0, 45.0, 10.0],   // looks straight ahead: pitch 90°
+            [30.0, -20.0, 200.0, 90.0], // a forward camera
+        ];
+        for [roll, pitch, yaw, mount] in cases {
+            let rpy = [roll, pitch, yaw].map(f64::to_radians);
+            let cam = CameraPose::on_vehicle([0.0; 3], rpy, mount.to_radians()).camera(intr);
+            let (a, u, v) = cam.basis();
+            let att = Attitude {
+                roll_deg: roll,
+                pitch_deg: pitch,
+                yaw_deg: yaw,
+                camera_pitch_deg: mount,
+            };
+            let cv_to_ned = camera_gl_to_ned(&att) * GL_TO_CV;
+            let world = |c: glam::DVec3| [c.x, -c.y, -c.z];
+            let want = [cv_to_ned.z_axis, cv_to_ned.x_axis, cv_to_ned.y_axis].map(world);
+            for (got, want) in [a, u, v].iter().zip(want) {
+                for k in 0..3 {
+                    assert!(
+                        (got[k] - want[k]).abs() < 1e-9,
+                        "rpy {rpy:?} mount {mount}: {got:?} vs {want:?}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn level_flight_keeps_the_pitch_only_camera_bit_for_bit() {
+        let pose = CameraPose::on_vehicle([1.0, 2.0, 3.0], [0.0, 0.1, 0.0], 0.3);
+        let cam = pose.camera(Intrinsics::from_hfov_deg(8, 6, 69.0, None).unwrap());
+        let (s, c) = (0.1f64 + 0.3).sin_cos();
+        let bits =
+            |(a, u, v): ([f64; 3], [f64; 3], [f64; 3])| [a, u, v].map(|w| w.map(f64::to_bits));
+        // The basis the renderer had when it rendered pitch only.
+        let pitch_only = ([s, 0.0, -c], [c, 0.0, s], [0.0, -1.0, 0.0]);
+        assert_eq!(bits(cam.basis()), bits(pitch_only));
     }
 
     #[test]
     fn frames_come_at_the_frame_rate_and_see_the_roof_then_the_ground() {
         let intr = Intrinsics::from_hfov_deg(40, 30, 69.0, None).unwrap();
         // Flying along +x at 10 m/s from x = 0 (over the roof) at 40 m.
-        let pose = |t: u64| {
-            Some(CameraPose {
-                position_m: [10.0 * t as f64 * 1e-9, 0.0, 40.0],
-                pitch_rad: 0.0,
-            })
-        };
+        let pose = |t: u64| Some(nadir([10.0 * t as f64 * 1e-9, 0.0, 40.0]));
         let mut src = at_10fps(intr, pose);
         let centre = |d: &DepthImage| match d.data() {
             DepthData::Z16 { data, .. } => data[15 * 40 + 20],
@@ -269,12 +371,7 @@ mod tests {
     #[test]
     fn no_pose_is_a_skipped_frame_not_a_stop() {
         let intr = Intrinsics::from_hfov_deg(8, 6, 69.0, None).unwrap();
-        let pose = |t: u64| {
-            (t != 100_000_000).then_some(CameraPose {
-                position_m: [0.0, 0.0, 40.0],
-                pitch_rad: 0.0,
-            })
-        };
+        let pose = |t: u64| (t != 100_000_000).then_some(nadir([0.0, 0.0, 40.0]));
         let mut src = at_10fps(intr, pose);
         assert!(src.next_depth().is_ok());
         assert!(matches!(
@@ -303,12 +400,7 @@ mod tests {
             }
         }
         let intr = Intrinsics::from_hfov_deg(8, 6, 69.0, None).unwrap();
-        let pose = |_| {
-            Some(CameraPose {
-                position_m: [0.0, 0.0, 40.0],
-                pitch_rad: 0.0,
-            })
-        };
+        let pose = |_| Some(nadir([0.0, 0.0, 40.0]));
         let mut src = SyntheticDepth::new(
             roof(),
             intr,
