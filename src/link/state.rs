@@ -245,7 +245,8 @@ impl Tracker {
     pub fn origin_requests(&mut self) -> [MavMessage; 2] {
         self.health.origin_requests += 2;
         let (target_system, target_component) = self.autopilot.unwrap_or((0, 0));
-        [242.0, 49.0].map(|id| {
+        // The origin first: answered in order, it anchors the frame before home could.
+        [49.0, 242.0].map(|id| {
             MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
                 command: MavCmd::MAV_CMD_REQUEST_MESSAGE,
                 param1: id,
