@@ -89,8 +89,8 @@ impl Airborne {
             Some(MavLandedState::MAV_LANDED_STATE_IN_AIR) => Airborne::Yes,
             Some(l) if l != MavLandedState::MAV_LANDED_STATE_UNDEFINED => Airborne::Landed(l as u8),
             _ if !armed => Airborne::Disarmed,
-            // Not `>=`: a NaN height is not airborne.
-            _ if !(rel_alt_m >= min_rel_alt_m) => Airborne::Low {
+            // A NaN height is not airborne either.
+            _ if rel_alt_m.is_nan() || rel_alt_m < min_rel_alt_m => Airborne::Low {
                 rel_alt_cm: (rel_alt_m * 100.0).round() as i32,
                 min_cm: (min_rel_alt_m * 100.0).round() as i32,
             },

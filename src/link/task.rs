@@ -121,9 +121,25 @@ fn split_raw(raw: &MAVLinkMessageRaw) -> (MavHeader, Option<MavMessage>, Vec<u8>
     (header, msg, bytes)
 }
 
-async fn read_loop(conn: Conn, tx: mpsc::Sender<Rx>, read_timeout: Duration) {
+/// The device of a `serial:PATH:BAUD` address.
+fn serial_path(address: &str) -> Option<std::path::PathBuf> {
+    let rest = address.strip_prefix("serial:")?;
+    let (path, _baud) = rest.rsplit_once(':')?;
+    Some(path.into())
+}
+
+async fn read_loop(
+    conn: Conn,
+    tx: mpsc::Sender<Rx>,
+    read_timeout: Duration,
+    serial: Option<std::path::PathBuf>,
+) {
     loop {
         let rx = match timeout(read_timeout, conn.recv_raw()).await {
+            // rust-mavlink's raw read retries every serial error but end-of-file, so an
+            // unplugged device (EIO) never ends it: a read that times out on a device that is
+            // gone closes the connection (else silence_reconnect_ms would, later).
+            Err(_) if serial.as_ref().is_some_and(|p| !p.exists()) => Rx::Closed,
             Err(_) => continue,
             Ok(Ok(raw)) => {
                 let (header, msg, bytes) = split_raw(&raw);
@@ -236,7 +252,12 @@ impl Link {
         shutdown: &mut std::pin::Pin<&mut F>,
     ) -> bool {
         let (rx_tx, mut rx) = mpsc::channel(256);
-        let reader = tokio::spawn(read_loop(conn.clone(), rx_tx, self.cfg.read_timeout));
+        let reader = tokio::spawn(read_loop(
+            conn.clone(),
+            rx_tx,
+            self.cfg.read_timeout,
+            serial_path(&self.cfg.address),
+        ));
         let _abort = AbortOnDrop(reader);
         self.publish_health();
         self.heartbeat(&conn).await;
