@@ -144,6 +144,8 @@ pub struct Tracker {
     /// EXTENDED_SYS_STATE's landed state, once the autopilot sends it.
     landed: Option<MavLandedState>,
     rel_alt_m: f64,
+    /// The autopilot refused MAV_CMD_REQUEST_MESSAGE (UNSUPPORTED or DENIED): not asked again.
+    origin_refused: bool,
     pub health: LinkHealth,
     pub state: Option<VehicleState>,
     /// The autopilot we follow: (system id, component id).
@@ -174,6 +176,7 @@ impl Tracker {
             armed: false,
             landed: None,
             rel_alt_m: 0.0,
+            origin_refused: false,
             sync: TimeSync::new(TimeSyncConfig::default()),
             poses,
             gate,
@@ -235,9 +238,9 @@ impl Tracker {
     }
 
     /// Whether HOME_POSITION and GPS_GLOBAL_ORIGIN are still worth requesting: neither has
-    /// come (nor a configured home).
+    /// come (nor a configured home), and the autopilot has not refused the request.
     pub fn wants_origin(&self) -> bool {
-        self.anchor.is_none_or(|a| a < AnchorSource::Home)
+        !self.origin_refused && self.anchor.is_none_or(|a| a < AnchorSource::Home)
     }
 
     /// MAV_CMD_REQUEST_MESSAGE for HOME_POSITION and GPS_GLOBAL_ORIGIN, addressed to the
@@ -494,6 +497,17 @@ impl Tracker {
             {
                 self.pending_rates.pop_front();
                 self.health.rates_acked = self.pending_rates.is_empty();
+            }
+            // The link's only REQUEST_MESSAGE to the autopilot is for the origin.
+            MavMessage::COMMAND_ACK(a)
+                if from_autopilot
+                    && a.command == MavCmd::MAV_CMD_REQUEST_MESSAGE
+                    && matches!(
+                        a.result,
+                        MavResult::MAV_RESULT_UNSUPPORTED | MavResult::MAV_RESULT_DENIED
+                    ) =>
+            {
+                self.origin_refused = true;
             }
             MavMessage::CAMERA_TRIGGER(c) if from_autopilot => {
                 out.push(Reaction::Event(LinkEvent::CameraTrigger {
@@ -1016,6 +1030,15 @@ mod origin_tests {
         feed(&mut t, &fix(GpsFixType::GPS_FIX_TYPE_2D_FIX), 2_000);
         feed(&mut t, &position(2_100, 5.0, 0.0, 0.0, false), 2_100);
         assert!(t.anchor().is_none());
+        // An autopilot that does not answer REQUEST_MESSAGE is not asked again.
+        assert!(t.wants_origin());
+        let refused = MavMessage::COMMAND_ACK(COMMAND_ACK_DATA {
+            command: MavCmd::MAV_CMD_REQUEST_MESSAGE,
+            result: MavResult::MAV_RESULT_UNSUPPORTED,
+            ..Default::default()
+        });
+        feed(&mut t, &refused, 2_120);
+        assert!(!t.wants_origin());
         feed(&mut t, &fix(GpsFixType::GPS_FIX_TYPE_3D_FIX), 2_150);
         feed(&mut t, &position(2_200, 5.0, 0.0, 0.0, false), 2_200);
         let (source, home) = t.anchor().unwrap();
