@@ -1,5 +1,7 @@
 //! The simulator's TOML config: parsed into raw structs (unknown keys refused), then checked into
-//! a `SimConfig` whose errors name the field.
+//! a `SimConfig` whose errors name the field. `autopilot = "ardupilot"` is a profile: it turns on
+//! ArduPilot's behaviours together (late origin, take-off from the ground, landed state, the
+//! MAVLinkCamV2 camera backend, a ground station answering TIMESYNC); explicit keys still win.
 
 use serde::Deserialize;
 use std::path::PathBuf;
@@ -66,6 +68,46 @@ pub struct Survey {
     pub wind_deg: f64,
 }
 
+/// Whose behaviour the simulator copies where autopilots differ.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Autopilot {
+    /// What firmware-sim always did: in the air from the start, origin known, CAMERA_TRIGGER.
+    Generic,
+    /// ArduPilot (ArduCopter), as read in its sources (docs/link.md).
+    ArduPilot,
+}
+
+/// How the distance trigger and capture commands take a picture.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CameraBackend {
+    /// The autopilot's own trigger output: a CAMERA_TRIGGER per picture.
+    Trigger,
+    /// ArduPilot's MAVLinkCamV2 (CAM1_TYPE = 6): finds a MAVLink camera (a HEARTBEAT of type
+    /// CAMERA from component 100), reads its CAMERA_INFORMATION, then sends it
+    /// MAV_CMD_IMAGE_START_CAPTURE per picture and reports CAMERA_FEEDBACK; no CAMERA_TRIGGER.
+    MavlinkCamV2,
+}
+
+/// The vehicle's life before the survey.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Vehicle {
+    /// Until then the EKF has no origin: GLOBAL_POSITION_INT reads lat = lon = 0, GPS_RAW_INT has
+    /// no fix for the first half; then GPS_GLOBAL_ORIGIN and HOME_POSITION are sent once (and
+    /// answered on MAV_CMD_REQUEST_MESSAGE). Zero: known from the start.
+    pub origin_delay: Duration,
+    /// Time on the ground (disarmed, then armed at 80 % of it) before a vertical take-off at
+    /// `climb_mps` to the survey altitude; zero: in the air, armed, from the start.
+    pub ground: Duration,
+    pub climb_mps: f64,
+}
+
+impl Vehicle {
+    /// When it arms (home is reset there, as ArduCopter does), after the start.
+    pub fn arm_at(&self) -> Duration {
+        self.ground.mul_f64(0.8)
+    }
+}
+
 /// Stream rates in Hz (0 = off).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Streams {
@@ -77,6 +119,8 @@ pub struct Streams {
     pub local_position_ned: f64,
     pub gps_raw_int: f64,
     pub system_time: f64,
+    /// EXTENDED_SYS_STATE (landed state).
+    pub extended_sys_state: f64,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -126,6 +170,9 @@ pub struct SimConfig {
     /// A ground station behind the autopilot that answers TIMESYNC requests heard on the main
     /// transport, as ArduPilot's ground stations do with the requests it forwards to them.
     pub gcs_timesync: Option<GcsTimesync>,
+    pub autopilot: Autopilot,
+    pub vehicle: Vehicle,
+    pub camera: CameraBackend,
 }
 
 /// A ground station answering TIMESYNC requests with its own clock: each request heard on the
@@ -171,6 +218,28 @@ struct Raw {
     #[serde(default)]
     faults: RawFaults,
     gcs_timesync: Option<RawGcsTimesync>,
+    /// "generic" (default) or "ardupilot".
+    autopilot: Option<String>,
+    #[serde(default)]
+    vehicle: RawVehicle,
+    #[serde(default)]
+    camera: RawCamera,
+}
+
+/// Unset keys take the profile's value.
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+struct RawVehicle {
+    origin_delay_s: Option<f64>,
+    ground_s: Option<f64>,
+    climb_mps: Option<f64>,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+struct RawCamera {
+    /// "trigger" or "mavlink_cam_v2".
+    backend: Option<String>,
 }
 
 #[derive(Deserialize)]
@@ -268,6 +337,8 @@ struct RawStreams {
     local_position_ned_hz: f64,
     gps_raw_int_hz: f64,
     system_time_hz: f64,
+    /// Unset: the profile's (ArduPilot streams it in its EXTENDED_STATUS group).
+    extended_sys_state_hz: Option<f64>,
 }
 
 impl Default for RawStreams {
@@ -281,6 +352,7 @@ impl Default for RawStreams {
             local_position_ned_hz: 5.0,
             gps_raw_int_hz: 5.0,
             system_time_hz: 1.0,
+            extended_sys_state_hz: None,
         }
     }
 }
@@ -367,6 +439,29 @@ fn probability(field: &'static str, v: f64) -> Result<f64, ConfigError> {
     Ok(v)
 }
 
+/// In the air with an origin from the start, as firmware-sim always flew.
+static GENERIC_VEHICLE: Vehicle = Vehicle {
+    origin_delay: Duration::ZERO,
+    ground: Duration::ZERO,
+    climb_mps: 3.0,
+};
+
+/// ArduCopter after power-on: some seconds until the EKF has an origin, armed later, then a
+/// take-off. 10 s on the ground also covers MAVLinkCamV2's wait before it looks for a camera.
+static ARDUPILOT_VEHICLE: Vehicle = Vehicle {
+    origin_delay: Duration::from_secs(6),
+    ground: Duration::from_secs(10),
+    climb_mps: 5.0,
+};
+
+/// EXTENDED_SYS_STATE's rate in the profile (ArduPilot's default stream rate for its group).
+const ARDUPILOT_EXTENDED_SYS_STATE_HZ: f64 = 2.0;
+
+/// QGroundControl behind ArduPilot, answering the TIMESYNC requests it forwards, its clock 5 s off.
+fn ardupilot_gcs() -> GcsTimesync {
+    GcsTimesync::qgc(5000.0).expect("a valid offset")
+}
+
 /// Check a ground-station address: `udpout:HOST:PORT` with a numeric port.
 pub fn check_gcs_address(address: &str) -> Result<(), String> {
     let bad = || format!("`{address}`: expected udpout:HOST:PORT, e.g. udpout:127.0.0.1:14550");
@@ -402,8 +497,80 @@ impl SimConfig {
         })
     }
 
+    /// The ArduPilot profile on top of a config (as `--autopilot ardupilot` does): each
+    /// behaviour the profile sets that the config left at its generic default.
+    pub fn ardupilot(mut self) -> Self {
+        let generic = SimConfig::default();
+        self.autopilot = Autopilot::ArduPilot;
+        if self.vehicle == generic.vehicle {
+            self.vehicle = ARDUPILOT_VEHICLE.clone();
+        }
+        if self.camera == generic.camera {
+            self.camera = CameraBackend::MavlinkCamV2;
+        }
+        if self.streams.extended_sys_state == generic.streams.extended_sys_state {
+            self.streams.extended_sys_state = ARDUPILOT_EXTENDED_SYS_STATE_HZ;
+        }
+        if self.gcs_timesync.is_none() {
+            self.gcs_timesync = Some(ardupilot_gcs());
+        }
+        self
+    }
+
     fn validate(raw: Raw) -> Result<Self, ConfigError> {
         let l = raw.link;
+        let autopilot = match raw.autopilot.as_deref() {
+            None | Some("generic") => Autopilot::Generic,
+            Some("ardupilot") => Autopilot::ArduPilot,
+            Some(other) => {
+                return Err(bad(
+                    "autopilot",
+                    format!("`{other}`: expected generic or ardupilot"),
+                ))
+            }
+        };
+        let ap = autopilot == Autopilot::ArduPilot;
+        let v = raw.vehicle;
+        let profile = if ap {
+            ARDUPILOT_VEHICLE.clone()
+        } else {
+            GENERIC_VEHICLE.clone()
+        };
+        let vehicle = Vehicle {
+            origin_delay: match v.origin_delay_s {
+                Some(s) => secs("vehicle.origin_delay_s", s)?,
+                None => profile.origin_delay,
+            },
+            ground: match v.ground_s {
+                Some(s) => secs("vehicle.ground_s", s)?,
+                None => profile.ground,
+            },
+            climb_mps: match v.climb_mps {
+                Some(c) => positive("vehicle.climb_mps", c)?,
+                None => profile.climb_mps,
+            },
+        };
+        if !vehicle.ground.is_zero() && vehicle.origin_delay > vehicle.arm_at() {
+            return Err(bad(
+                "vehicle.origin_delay_s",
+                format!(
+                    "{:?}: an autopilot arms only with an origin, at 80 % of ground_s ({:?})",
+                    vehicle.origin_delay,
+                    vehicle.arm_at()
+                ),
+            ));
+        }
+        let camera = match raw.camera.backend.as_deref() {
+            None if ap => CameraBackend::MavlinkCamV2,
+            None | Some("trigger") => CameraBackend::Trigger,
+            Some("mavlink_cam_v2") => CameraBackend::MavlinkCamV2,
+            Some(other) => {
+                return Err(bad(
+                    "camera.backend",
+                    format!("`{other}`: expected trigger or mavlink_cam_v2"),
+                ))
+            }
+        };
         let transport = match l.transport.as_str() {
             "pty" => Transport::Pty { link: l.path },
             "serial" => Transport::Serial {
@@ -482,6 +649,11 @@ impl SimConfig {
             local_position_ned: rate("streams.local_position_ned_hz", r.local_position_ned_hz)?,
             gps_raw_int: rate("streams.gps_raw_int_hz", r.gps_raw_int_hz)?,
             system_time: rate("streams.system_time_hz", r.system_time_hz)?,
+            extended_sys_state: match r.extended_sys_state_hz {
+                Some(hz) => rate("streams.extended_sys_state_hz", hz)?,
+                None if ap => ARDUPILOT_EXTENDED_SYS_STATE_HZ,
+                None => 0.0,
+            },
         };
         if !(raw.clock.drift_ppm.is_finite() && raw.clock.drift_ppm.abs() <= 1000.0) {
             return Err(bad("clock.drift_ppm", "must be within ±1000 ppm"));
@@ -517,6 +689,7 @@ impl SimConfig {
             events,
         };
         let gcs_timesync = match raw.gcs_timesync {
+            None if ap => Some(ardupilot_gcs()),
             None => None,
             Some(g) => {
                 if g.system_id == 0 || g.system_id == l.system_id {
@@ -539,6 +712,9 @@ impl SimConfig {
         };
         Ok(SimConfig {
             gcs_timesync,
+            autopilot,
+            vehicle,
+            camera,
             transport,
             mavlink_version: l.mavlink_version,
             system_id: l.system_id,

@@ -14,7 +14,10 @@ mod transport;
 pub mod truth;
 
 pub use clock::mono_ns;
-pub use config::{ConfigError, FaultKind, GcsTimesync, Pattern, SimConfig, Transport};
+pub use config::{
+    Autopilot, CameraBackend, ConfigError, FaultKind, GcsTimesync, Pattern, SimConfig, Transport,
+    Vehicle,
+};
 pub use faults::Noise;
 pub use sim::{start, SimError, SimHandle, SimStats};
 pub use truth::Truth;
@@ -72,9 +75,21 @@ pub enum SimEvent {
         msg_id: u32,
         command: Option<u32>,
     },
-    /// A CAMERA_TRIGGER went out (distance trigger or capture command).
+    /// A picture was taken (distance trigger or capture command): a CAMERA_TRIGGER went out, or
+    /// with the MAVLinkCamV2 backend an IMAGE_START_CAPTURE to the camera and a CAMERA_FEEDBACK.
     Capture {
         mono_ns: u64,
         seq: u32,
+    },
+    /// The EKF got its origin: GPS_GLOBAL_ORIGIN and HOME_POSITION went out.
+    OriginSet {
+        mono_ns: u64,
+    },
+    Armed {
+        mono_ns: u64,
+    },
+    /// Landed state IN_AIR: the take-off climb is over, the survey starts.
+    InAir {
+        mono_ns: u64,
     },
 }

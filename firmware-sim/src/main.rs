@@ -54,6 +54,12 @@ struct Args {
     /// (overrides the config's `[gcs_timesync]`).
     #[arg(long, value_name = "OFFSET_MS", allow_hyphen_values = true)]
     gcs_answers_timesync: Option<f64>,
+    /// Behave like `generic` firmware-sim or like `ardupilot` (late origin after lat = lon = 0
+    /// positions, take-off from the ground, landed state, IMAGE_START_CAPTURE to the camera
+    /// and CAMERA_FEEDBACK instead of CAMERA_TRIGGER, a ground station answering TIMESYNC);
+    /// overrides the config's `autopilot`.
+    #[arg(long, value_name = "PROFILE")]
+    autopilot: Option<String>,
 }
 
 fn event(spec: &str) -> Result<FaultEvent, String> {
@@ -170,6 +176,11 @@ fn config(a: &Args) -> Result<SimConfig, String> {
         c.gcs_timesync = Some(g);
     }
     c.truth_path = a.truth.clone().or(c.truth_path);
+    match a.autopilot.as_deref() {
+        None | Some("generic") => {}
+        Some("ardupilot") => c = c.ardupilot(),
+        Some(p) => return Err(format!("--autopilot: `{p}`: expected generic or ardupilot")),
+    }
     Ok(c)
 }
 

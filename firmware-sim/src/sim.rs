@@ -4,7 +4,7 @@
 //! the engine is also the router between the two links, like PX4's MAVLink forwarding.
 
 use crate::clock::{instant_at, mono_ns, BootClock};
-use crate::config::{FaultKind, SimConfig};
+use crate::config::{Autopilot, CameraBackend, FaultKind, SimConfig};
 use crate::faults::{delay, mangle, Noise, Rng};
 use crate::geo::ned_to_geodetic;
 use crate::trajectory::{quat_from_rpy, Trajectory};
@@ -182,7 +182,10 @@ pub async fn start(config: SimConfig) -> Result<SimHandle, SimError> {
     };
     let s = &config.survey;
     let shared = Arc::new(Shared {
-        traj: Trajectory::new(s, config.faults.seed),
+        traj: Trajectory::new(s, config.faults.seed).with_prelude(
+            config.vehicle.ground.as_secs_f64(),
+            config.vehicle.climb_mps,
+        ),
         origin: [s.origin_lat_deg, s.origin_lon_deg, s.origin_alt_m],
         start_mono_ns: now,
         boot: Mutex::new(vec![boot]),
@@ -225,7 +228,9 @@ enum To {
 }
 
 /// The streamed messages, by MAVLink id.
-const STREAM_IDS: [u32; 8] = [0, 1, 30, 31, 33, 32, 24, 2];
+const STREAM_IDS: [u32; 9] = [0, 1, 30, 31, 33, 32, 24, 2, 245];
+/// MAV_COMP_ID_CAMERA: where ArduPilot's MAVLinkCamV2 (instance 0) looks for its camera.
+const CAMERA_COMPONENT: u8 = 100;
 
 struct Engine {
     cfg: SimConfig,
@@ -240,12 +245,21 @@ struct Engine {
     gcs_timesync_seq: u8,
     last_delivery: tokio::time::Instant,
     /// Per stream: period (ms, 0 = off) and next due boot ms.
-    streams: [(u64, u64); 8],
+    streams: [(u64, u64); 9],
     silent_until: u64,
     quiet_until: u64,
     glitch: Option<([f64; 3], u64)>,
     trigger: Option<(f64, f64)>,
     capture_seq: u32,
+    /// Milestones already announced: origin set, armed, in the air.
+    origin_sent: bool,
+    armed_sent: bool,
+    in_air_sent: bool,
+    /// MAVLinkCamV2: the camera found (system, component), its CAMERA_INFORMATION flags once
+    /// read, and when to ask for them next.
+    camera: Option<(u8, u8)>,
+    camera_flags: Option<CameraCapFlags>,
+    caminfo_next_ns: u64,
     pending: Vec<(u64, Fault)>,
     truth: Option<std::io::BufWriter<std::fs::File>>,
 }
@@ -302,12 +316,18 @@ impl Engine {
             seq: [0; 2],
             gcs_timesync_seq: 0,
             last_delivery: tokio::time::Instant::now(),
-            streams: [(0, 0); 8],
+            streams: [(0, 0); 9],
             silent_until: 0,
             quiet_until: 0,
             glitch: None,
             trigger: None,
             capture_seq: 0,
+            origin_sent: false,
+            armed_sent: false,
+            in_air_sent: false,
+            camera: None,
+            camera_flags: None,
+            caminfo_next_ns: 0,
             pending,
             truth,
             cfg,
@@ -320,7 +340,7 @@ impl Engine {
     }
 
     /// The configured period (ms, 0 = off) of each stream.
-    fn configured_periods(&self) -> [u64; 8] {
+    fn configured_periods(&self) -> [u64; 9] {
         let r = &self.cfg.streams;
         [
             r.heartbeat,
@@ -331,8 +351,115 @@ impl Engine {
             r.local_position_ned,
             r.gps_raw_int,
             r.system_time,
+            r.extended_sys_state,
         ]
         .map(period_ms)
+    }
+
+    /// The monotonic instant `after` the start.
+    fn at(&self, after: std::time::Duration) -> u64 {
+        self.shared.start_mono_ns + after.as_nanos() as u64
+    }
+
+    fn origin_known(&self, mono: u64) -> bool {
+        mono >= self.at(self.cfg.vehicle.origin_delay)
+    }
+
+    /// GPS_RAW_INT has a 3-D fix from half the origin delay on: the GPS is fine before the EKF
+    /// has its origin (ArduPilot's window of lat = lon = 0 positions with a fix).
+    fn fix_known(&self, mono: u64) -> bool {
+        mono >= self.at(self.cfg.vehicle.origin_delay / 2)
+    }
+
+    fn armed(&self, mono: u64) -> bool {
+        mono >= self.at(self.cfg.vehicle.arm_at())
+    }
+
+    /// When the take-off climb ends: landed state IN_AIR from then on.
+    fn in_air_at(&self) -> u64 {
+        self.shared.start_mono_ns + (self.shared.traj.takeoff_done_s() * 1e9) as u64
+    }
+
+    fn landed_state(&self, mono: u64) -> MavLandedState {
+        if mono >= self.in_air_at() {
+            MavLandedState::MAV_LANDED_STATE_IN_AIR
+        } else if mono >= self.at(self.cfg.vehicle.ground) {
+            MavLandedState::MAV_LANDED_STATE_TAKEOFF
+        } else {
+            MavLandedState::MAV_LANDED_STATE_ON_GROUND
+        }
+    }
+
+    /// HOME_POSITION (where the vehicle is, on the ground) or GPS_GLOBAL_ORIGIN (the survey
+    /// origin), as ArduPilot fills them: altitude AMSL in mm, local x/y/z and q left zero.
+    fn origin_message(&self, id: u32, mono: u64) -> Option<MavMessage> {
+        let o = self.shared.origin;
+        let now_us = self.boot.boot_ns(mono) / 1000;
+        match id {
+            242 => {
+                let tr = self.shared.truth(mono);
+                Some(MavMessage::HOME_POSITION(HOME_POSITION_DATA {
+                    latitude: (tr.lat_deg * 1e7).round() as i32,
+                    longitude: (tr.lon_deg * 1e7).round() as i32,
+                    altitude: (o[2] * 1e3).round() as i32,
+                    q: [1.0, 0.0, 0.0, 0.0],
+                    time_usec: now_us,
+                    ..Default::default()
+                }))
+            }
+            49 => Some(MavMessage::GPS_GLOBAL_ORIGIN(GPS_GLOBAL_ORIGIN_DATA {
+                latitude: (o[0] * 1e7).round() as i32,
+                longitude: (o[1] * 1e7).round() as i32,
+                altitude: (o[2] * 1e3).round() as i32,
+                time_usec: now_us,
+            })),
+            _ => None,
+        }
+    }
+
+    /// The vehicle's milestones: origin set (GPS_GLOBAL_ORIGIN and HOME_POSITION to all),
+    /// armed (home reset where it stands, as ArduCopter does), in the air.
+    fn milestones(&mut self, io: &Links, now: u64) {
+        if !self.origin_sent && self.origin_known(now) {
+            self.origin_sent = true;
+            // Not before the first stream tick: a delay of zero means "known from the start",
+            // announced only when asked for.
+            if !self.cfg.vehicle.origin_delay.is_zero() {
+                for id in [49, 242] {
+                    if let Some(m) = self.origin_message(id, now) {
+                        self.send(io, &m, now, To::Both);
+                    }
+                }
+            }
+            let _ = self.events.send(SimEvent::OriginSet { mono_ns: now });
+        }
+        if !self.armed_sent && self.armed(now) {
+            self.armed_sent = true;
+            if !self.cfg.vehicle.ground.is_zero() {
+                if let Some(m) = self.origin_message(242, now) {
+                    self.send(io, &m, now, To::Both);
+                }
+            }
+            let _ = self.events.send(SimEvent::Armed { mono_ns: now });
+        }
+        if !self.in_air_sent && now >= self.in_air_at() {
+            self.in_air_sent = true;
+            let _ = self.events.send(SimEvent::InAir { mono_ns: now });
+        }
+        if let (Some((sys, comp)), None) = (self.camera, self.camera_flags) {
+            if now >= self.caminfo_next_ns {
+                // MAVLinkCamV2::find_camera: CAMERA_INFORMATION asked for every second.
+                self.caminfo_next_ns = now + 1_000_000_000;
+                let req = MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
+                    command: MavCmd::MAV_CMD_REQUEST_MESSAGE,
+                    param1: 259.0,
+                    target_system: sys,
+                    target_component: comp,
+                    ..Default::default()
+                });
+                self.send(io, &req, now, To::Only(Side::Main));
+            }
+        }
     }
 
     fn reset_streams(&mut self) {
@@ -350,6 +477,15 @@ impl Engine {
         }
         if let Some((_, at)) = self.trigger {
             t = t.min(at as u64);
+        }
+        if !self.origin_sent {
+            t = t.min(self.at(self.cfg.vehicle.origin_delay));
+        }
+        if !self.armed_sent {
+            t = t.min(self.at(self.cfg.vehicle.arm_at()));
+        }
+        if !self.in_air_sent {
+            t = t.min(self.in_air_at());
         }
         for (at, _) in &self.pending {
             t = t.min(*at);
@@ -421,6 +557,7 @@ impl Engine {
                 let _ = self.events.send(SimEvent::GlitchEnd { mono_ns: now });
             }
         }
+        self.milestones(io, now);
         if let Some((dist, at)) = self.trigger {
             if at as u64 <= now {
                 self.capture(io, at as u64, "trigger");
@@ -468,6 +605,10 @@ impl Engine {
             }
         }
         let g = ned_to_geodetic(self.shared.origin, ned);
+        // ArduPilot before its EKF origin: the location it sends is all zeros; the GPS itself
+        // has no fix for a while either.
+        let origin_known = self.origin_known(mono);
+        let fix_known = self.fix_known(mono);
         let t32 = boot_ms as u32;
         let v = tr.vel_ned_mps;
         let rpy = tr.rpy_deg.map(f64::to_radians);
@@ -479,9 +620,15 @@ impl Engine {
             0 => MavMessage::HEARTBEAT(HEARTBEAT_DATA {
                 custom_mode: 0,
                 mavtype: MavType::MAV_TYPE_QUADROTOR,
-                autopilot: MavAutopilot::MAV_AUTOPILOT_PX4,
-                base_mode: MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED
-                    | MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+                autopilot: match self.cfg.autopilot {
+                    Autopilot::Generic => MavAutopilot::MAV_AUTOPILOT_PX4,
+                    Autopilot::ArduPilot => MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA,
+                },
+                base_mode: if self.armed(mono) {
+                    MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED
+                } else {
+                    MavModeFlag::empty()
+                } | MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
                 system_status: MavState::MAV_STATE_ACTIVE,
                 mavlink_version: 3,
             }),
@@ -511,6 +658,27 @@ impl Engine {
                 pitchspeed: st.rates_rps[1] as f32,
                 yawspeed: st.rates_rps[2] as f32,
                 repr_offset_q: [0.0; 4],
+            }),
+            33 if !origin_known => MavMessage::GLOBAL_POSITION_INT(GLOBAL_POSITION_INT_DATA {
+                time_boot_ms: t32,
+                hdg: u16::MAX,
+                ..Default::default()
+            }),
+            // No local frame without an origin.
+            32 if !origin_known => return,
+            24 if !fix_known => MavMessage::GPS_RAW_INT(GPS_RAW_INT_DATA {
+                time_usec: boot_ms * 1000,
+                eph: u16::MAX,
+                epv: u16::MAX,
+                vel: u16::MAX,
+                cog: u16::MAX,
+                fix_type: GpsFixType::GPS_FIX_TYPE_NO_FIX,
+                satellites_visible: 3,
+                ..Default::default()
+            }),
+            245 => MavMessage::EXTENDED_SYS_STATE(EXTENDED_SYS_STATE_DATA {
+                vtol_state: MavVtolState::MAV_VTOL_STATE_UNDEFINED,
+                landed_state: self.landed_state(mono),
             }),
             33 => MavMessage::GLOBAL_POSITION_INT(GLOBAL_POSITION_INT_DATA {
                 time_boot_ms: t32,
@@ -639,6 +807,9 @@ impl Engine {
     }
 
     fn capture(&mut self, io: &Links, mono: u64, why: &str) {
+        if self.cfg.camera == CameraBackend::MavlinkCamV2 {
+            return self.capture_mavlink_cam(io, mono, why);
+        }
         self.capture_seq += 1;
         let seq = self.capture_seq;
         let boot_us = self.boot.boot_ns(mono) / 1000;
@@ -650,6 +821,85 @@ impl Engine {
         let truth = self.shared.truth(mono);
         self.write_truth(why, Some(seq), truth);
         let _ = self.events.send(SimEvent::Capture { mono_ns: mono, seq });
+    }
+
+    /// A picture through ArduPilot's MAVLinkCamV2 backend: nothing until the camera is found and
+    /// its CAMERA_INFORMATION says it captures images (`trigger_pic` fails, no photo counted);
+    /// then IMAGE_START_CAPTURE (one image, sequence number = the next image index) to the
+    /// camera, and CAMERA_FEEDBACK to everyone, stamped with GPS time (UNIX µs).
+    fn capture_mavlink_cam(&mut self, io: &Links, mono: u64, why: &str) {
+        let (Some((sys, comp)), Some(flags)) = (self.camera, self.camera_flags) else {
+            return;
+        };
+        if !flags.contains(CameraCapFlags::CAMERA_CAP_FLAGS_CAPTURE_IMAGE) {
+            return;
+        }
+        let now = mono_ns();
+        let index = self.capture_seq + 1;
+        let cmd = MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
+            command: MavCmd::MAV_CMD_IMAGE_START_CAPTURE,
+            param3: 1.0,
+            param4: index as f32,
+            target_system: sys,
+            target_component: comp,
+            ..Default::default()
+        });
+        self.send(io, &cmd, now, To::Only(Side::Main));
+        self.capture_seq = index;
+        let tr = self.shared.truth(mono);
+        let unix_us = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_micros() as u64)
+            .saturating_sub(now.saturating_sub(mono) / 1000);
+        let feedback = MavMessage::CAMERA_FEEDBACK(CAMERA_FEEDBACK_DATA {
+            time_usec: unix_us,
+            lat: (tr.lat_deg * 1e7).round() as i32,
+            lng: (tr.lon_deg * 1e7).round() as i32,
+            alt_msl: tr.alt_m as f32,
+            alt_rel: (tr.alt_m - self.shared.origin[2]) as f32,
+            roll: tr.rpy_deg[0] as f32,
+            pitch: tr.rpy_deg[1] as f32,
+            yaw: tr.rpy_deg[2] as f32,
+            foc_len: 0.0,
+            img_idx: index as u16,
+            target_system: 0,
+            cam_idx: 0,
+            flags: CameraFeedbackFlags::CAMERA_FEEDBACK_PHOTO,
+            completed_captures: 0,
+        });
+        self.send(io, &feedback, now, To::Both);
+        self.write_truth(why, Some(index), tr);
+        let _ = self.events.send(SimEvent::Capture {
+            mono_ns: mono,
+            seq: index,
+        });
+    }
+
+    /// MAVLinkCamV2's discovery, from what the camera sends on the main link: a HEARTBEAT of
+    /// type CAMERA from component 100, looked for from 10 s after boot until 60 s if armed by
+    /// then; then its CAMERA_INFORMATION.
+    fn watch_camera(&mut self, header: &MavHeader, msg: &MavMessage, now: u64) {
+        if self.cfg.camera != CameraBackend::MavlinkCamV2 || header.component_id != CAMERA_COMPONENT
+        {
+            return;
+        }
+        let sys = header.system_id as u8;
+        match msg {
+            MavMessage::HEARTBEAT(hb)
+                if self.camera.is_none() && hb.mavtype == MavType::MAV_TYPE_CAMERA =>
+            {
+                let boot_ms = self.boot.boot_ns(now) / 1_000_000;
+                if boot_ms >= 10_000 && !(boot_ms > 60_000 && self.armed(now)) {
+                    self.camera = Some((sys, CAMERA_COMPONENT));
+                }
+            }
+            MavMessage::CAMERA_INFORMATION(info)
+                if self.camera == Some((sys, CAMERA_COMPONENT)) =>
+            {
+                self.camera_flags = Some(info.flags);
+            }
+            _ => {}
+        }
     }
 
     async fn apply(&mut self, io: &Links, f: Fault) -> u64 {
@@ -731,6 +981,9 @@ impl Engine {
         if now < self.quiet_until {
             return;
         }
+        if let (Side::Main, Some(m)) = (from, &msg) {
+            self.watch_camera(&header, m, now);
+        }
         if let (Side::Main, Some(MavMessage::TIMESYNC(t))) = (from, &msg) {
             if t.tc1 == 0 {
                 self.gcs_answers_timesync(io, t.ts1, &header);
@@ -779,8 +1032,17 @@ impl Engine {
                 if c.command == MavCmd::MAV_CMD_REQUEST_MESSAGE
                     && result == MavResult::MAV_RESULT_ACCEPTED
                 {
-                    let boot_ms = self.boot.boot_ns(now) / 1_000_000;
-                    self.emit_stream(io, c.param1 as u32, boot_ms, now);
+                    let id = c.param1 as u32;
+                    match self.origin_message(id, now) {
+                        // Accepted, but sent only once there is one (GCS_Common's
+                        // send_home_position / send_gps_global_origin return silently).
+                        Some(m) if self.origin_known(now) => self.send(io, &m, mono_ns(), back),
+                        Some(_) => {}
+                        None => {
+                            let boot_ms = self.boot.boot_ns(now) / 1_000_000;
+                            self.emit_stream(io, id, boot_ms, now);
+                        }
+                    }
                 }
             }
             _ => {}
@@ -845,6 +1107,13 @@ impl Engine {
             }
             MavCmd::MAV_CMD_REQUEST_MESSAGE => match stream(c.param1) {
                 Some(_) => MavResult::MAV_RESULT_ACCEPTED,
+                // HOME_POSITION and GPS_GLOBAL_ORIGIN: ArduPilot's answers; the generic profile
+                // keeps what firmware-sim always did (unsupported).
+                None if matches!(c.param1 as u32, 242 | 49)
+                    && self.cfg.autopilot == Autopilot::ArduPilot =>
+                {
+                    MavResult::MAV_RESULT_ACCEPTED
+                }
                 None => MavResult::MAV_RESULT_UNSUPPORTED,
             },
             MavCmd::MAV_CMD_DO_SET_CAM_TRIGG_DIST => {

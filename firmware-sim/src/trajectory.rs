@@ -1,6 +1,7 @@
 //! The flown survey as an analytic function of time: rest-to-rest segments with trapezoidal
 //! speed profiles (acceleration-limited) through a closed loop of waypoints, plus a smooth
-//! wind-like wander, so the true pose at any instant is exact.
+//! wind-like wander, so the true pose at any instant is exact. Optionally a prelude: time on the
+//! ground, then a vertical climb to the survey altitude, before the survey starts.
 
 use crate::config::{Pattern, Survey};
 use std::f64::consts::{PI, TAU};
@@ -42,6 +43,8 @@ pub struct Trajectory {
     wind_m: f64,
     wind_rad: f64,
     phases: [f64; 6],
+    ground_s: f64,
+    climb_mps: f64,
 }
 
 impl Trajectory {
@@ -108,7 +111,31 @@ impl Trajectory {
             wind_m: s.wind_m,
             wind_rad: s.wind_deg.to_radians(),
             phases,
+            ground_s: 0.0,
+            climb_mps: 1.0,
         }
+    }
+
+    /// Start on the ground at the survey's first point for `ground_s`, then climb vertically at
+    /// `climb_mps` to the survey altitude; the survey follows.
+    pub fn with_prelude(mut self, ground_s: f64, climb_mps: f64) -> Self {
+        self.ground_s = ground_s.max(0.0);
+        self.climb_mps = climb_mps;
+        self
+    }
+
+    /// When the climb ends (0 without a prelude).
+    pub fn takeoff_done_s(&self) -> f64 {
+        if self.ground_s > 0.0 {
+            self.ground_s + self.altitude_m / self.climb_mps
+        } else {
+            0.0
+        }
+    }
+
+    /// When the take-off starts (0 without a prelude).
+    pub fn ground_s(&self) -> f64 {
+        self.ground_s
     }
 
     /// Distance along the path, speed and acceleration along it, and the segment, at `t` s.
@@ -190,6 +217,28 @@ impl Trajectory {
 
     /// The true state `t` seconds after the start of the flight.
     pub fn state(&self, t: f64) -> State {
+        let pre = self.takeoff_done_s();
+        if self.ground_s <= 0.0 || t >= pre {
+            return self.survey_state(t - pre);
+        }
+        let first = self.survey_state(0.0);
+        let climbing = t >= self.ground_s;
+        let up_m = if climbing {
+            (t - self.ground_s) * self.climb_mps
+        } else {
+            0.0
+        };
+        State {
+            pos_ned_m: [first.pos_ned_m[0], first.pos_ned_m[1], -up_m],
+            vel_ned_mps: [0.0, 0.0, if climbing { -self.climb_mps } else { 0.0 }],
+            rpy_rad: first.rpy_rad,
+            rates_rps: [0.0; 3],
+            path_m: 0.0,
+        }
+    }
+
+    /// The survey's state `t` seconds after it started.
+    fn survey_state(&self, t: f64) -> State {
         let (s, v, _, g, laps) = self.along(t);
         let mut pos = [
             g.start[0] + g.dir[0] * s,
@@ -233,20 +282,25 @@ impl Trajectory {
 
     /// The first time after `t_from` at which the path distance reaches `path_m` (bisection).
     pub fn time_at_path(&self, t_from: f64, path_m: f64) -> f64 {
+        let pre = self.takeoff_done_s();
+        if path_m <= 0.0 {
+            return t_from;
+        }
+        let t_from = (t_from - pre).max(0.0);
         let (mut lo, mut hi) = (t_from, t_from + 1.0);
-        while self.state(hi).path_m < path_m {
+        while self.survey_state(hi).path_m < path_m {
             lo = hi;
             hi += (hi - t_from).max(1.0);
         }
         for _ in 0..60 {
             let mid = 0.5 * (lo + hi);
-            if self.state(mid).path_m < path_m {
+            if self.survey_state(mid).path_m < path_m {
                 lo = mid;
             } else {
                 hi = mid;
             }
         }
-        hi
+        pre + hi
     }
 }
 
@@ -282,6 +336,23 @@ mod tests {
             }
             assert!(s.vel_ned_mps[0].hypot(s.vel_ned_mps[1]) < c.survey.speed_mps + 1.0);
         }
+    }
+
+    #[test]
+    fn the_prelude_waits_on_the_ground_then_climbs_to_the_survey() {
+        let s = SimConfig::default().survey;
+        let tr = Trajectory::new(&s, 1).with_prelude(10.0, 5.0);
+        assert_eq!(tr.takeoff_done_s(), 10.0 + s.altitude_m / 5.0);
+        let at = |t: f64| tr.state(t);
+        assert_eq!(at(3.0).pos_ned_m[2], 0.0);
+        assert_eq!(at(3.0).path_m, 0.0);
+        assert!((at(12.0).pos_ned_m[2] + 10.0).abs() < 1e-9);
+        assert_eq!(at(12.0).vel_ned_mps, [0.0, 0.0, -5.0]);
+        let end = tr.takeoff_done_s();
+        assert!((at(end).pos_ned_m[2] + s.altitude_m).abs() < s.wind_m);
+        // The path distance starts with the survey, and inverts through the prelude.
+        let t = tr.time_at_path(0.0, 50.0);
+        assert!(t > end && (at(t).path_m - 50.0).abs() < 1e-6);
     }
 
     #[test]

@@ -104,6 +104,14 @@ impl PoseBuffer {
         self.att.clear();
     }
 
+    /// Re-express every kept position with `f` (old local NED to new), when the local frame's
+    /// anchor moves: the history stays continuous, so interpolation needs no new samples.
+    pub fn map_positions(&mut self, f: impl Fn(DVec3) -> DVec3) {
+        for s in &mut self.pos {
+            s.pos_ned_m = f(s.pos_ned_m);
+        }
+    }
+
     pub fn newest_position(&self) -> Option<&PositionSample> {
         self.pos.back()
     }

@@ -70,8 +70,20 @@ pub struct RawLinkConfig {
     pub signing_link_id: Option<u8>,
     /// Accept unsigned frames while signing (default false); only with `signing_key_file`.
     pub accept_unsigned: Option<bool>,
+    /// Poses for captures only while the vehicle is airborne (default true).
+    #[serde(default = "yes")]
+    pub require_airborne: bool,
+    /// Without EXTENDED_SYS_STATE: airborne = armed and at least this high above home.
+    #[serde(default = "min_rel_alt")]
+    pub min_rel_alt_m: f64,
 }
 
+fn yes() -> bool {
+    true
+}
+fn min_rel_alt() -> f64 {
+    2.0
+}
 fn one() -> u8 {
     1
 }
@@ -136,6 +148,11 @@ pub struct LinkConfig {
     pub glitch_reanchor: Duration,
     /// MAVLink 2 signing, when `signing_key_file` is set; `None`: nothing signed or checked.
     pub signing: Option<Signing>,
+    /// Pose queries (what captures are logged with) fail while the vehicle is not airborne.
+    pub require_airborne: bool,
+    /// Airborne without a landed state from the autopilot: armed and at least this high (m)
+    /// above home (GLOBAL_POSITION_INT.relative_alt).
+    pub min_rel_alt_m: f64,
 }
 
 /// MAVLink 2 signing settings, the key already read and checked.
@@ -347,6 +364,12 @@ impl TryFrom<RawLinkConfig> for LinkConfig {
                 })
             }
         };
+        if !(r.min_rel_alt_m.is_finite() && (0.0..=10_000.0).contains(&r.min_rel_alt_m)) {
+            return Err(bad(
+                "min_rel_alt_m",
+                format!("{}: must be between 0 and 10000 m", r.min_rel_alt_m),
+            ));
+        }
         let reconnect_initial = ms("reconnect_initial_ms", r.reconnect_initial_ms, 1, 60_000)?;
         let reconnect_max = ms("reconnect_max_ms", r.reconnect_max_ms, 1, 60_000)?;
         if reconnect_max < reconnect_initial {
@@ -375,6 +398,8 @@ impl TryFrom<RawLinkConfig> for LinkConfig {
             glitch_tolerance_m: r.glitch_tolerance_m,
             glitch_reanchor: ms("glitch_reanchor_ms", r.glitch_reanchor_ms, 0, 3_600_000)?,
             signing,
+            require_airborne: r.require_airborne,
+            min_rel_alt_m: r.min_rel_alt_m,
         })
     }
 }
@@ -406,6 +431,10 @@ mod tests {
             (
                 "address = \"udpin:0.0.0.0:14550\"\nhome_lat_deg = 91\nhome_lon_deg = 0",
                 "mavlink.home_lat_deg",
+            ),
+            (
+                "address = \"udpin:0.0.0.0:14550\"\nmin_rel_alt_m = -1",
+                "mavlink.min_rel_alt_m",
             ),
             ("address = \"udpin:0.0.0.0:14550\"\nadress = 1", "mavlink"),
         ];

@@ -10,7 +10,7 @@ mod task;
 
 pub use clock::mono_ns;
 pub use config::{LinkConfig, LinkConfigError, RawLinkConfig};
-pub use state::{PoseQueryError, Reaction, Tracker};
+pub use state::{Airborne, AnchorSource, PoseQueryError, Reaction, Tracker};
 pub use task::{new, Link, LinkError, TapFrame};
 
 use crate::core::allowlist::Trust;
@@ -29,7 +29,14 @@ pub struct VehicleState {
     /// Local NED around `home`.
     pub pos_ned_m: [f64; 3],
     pub vel_ned_mps: [f64; 3],
+    /// The local frame's anchor: the autopilot's EKF origin or home, else the first position
+    /// with a 3-D fix (`origin_source` says which). It moves only when the autopilot's does.
     pub home: Geodetic,
+    pub origin_source: AnchorSource,
+    /// Height above the autopilot's home (GLOBAL_POSITION_INT.relative_alt), m.
+    pub rel_alt_m: f64,
+    /// Whether captures may be taken, and if not, why ([`Airborne`]).
+    pub airborne: Airborne,
     /// Body to NED (w, x, y, z).
     pub q: [f64; 4],
     pub rpy_deg: [f64; 3],
@@ -79,6 +86,15 @@ pub struct LinkHealth {
     pub glitches: u64,
     pub glitch_rejected: u64,
     pub reanchors: u32,
+    /// Times the local frame was anchored on the autopilot's origin or home, or re-anchored
+    /// when it moved (never on a glitch).
+    pub origin_anchors: u32,
+    /// Positions not used for want of a valid origin (no 3-D fix, or lat = lon = 0).
+    pub positions_without_origin: u64,
+    /// MAV_CMD_REQUEST_MESSAGE sent for HOME_POSITION and GPS_GLOBAL_ORIGIN.
+    pub origin_requests: u32,
+    /// CAMERA_FEEDBACK messages from the autopilot (ArduPilot's per-photo report).
+    pub camera_feedbacks: u64,
     pub rates_acked: bool,
     pub sent: u64,
     pub refused: u64,
@@ -95,6 +111,23 @@ pub enum LinkEvent {
     },
     GpsReanchored {
         jump_m: f64,
+    },
+    /// The local frame was anchored (`moved_m`: `None`) or moved with the autopilot's origin;
+    /// poses already kept were re-expressed in the new frame, so nothing was suspended.
+    OriginSet {
+        source: AnchorSource,
+        home: Geodetic,
+        moved_m: Option<f64>,
+    },
+    /// ArduPilot's CAMERA_FEEDBACK: a photo its camera backend took (`time_usec` is GPS time,
+    /// UNIX epoch µs, not boot time; `img_idx` counts from 1).
+    CameraFeedback {
+        img_idx: u16,
+        gps_time_usec: u64,
+        lat_deg: f64,
+        lon_deg: f64,
+        alt_msl_m: f32,
+        alt_rel_m: f32,
     },
     /// The autopilot's own camera trigger fired.
     CameraTrigger {

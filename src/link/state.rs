@@ -1,6 +1,8 @@
 //! The link's bookkeeping, with no I/O: digests each incoming message (at its receive instant)
 //! into the TIMESYNC filter, the glitch gate, the pose buffer, the published vehicle state and
-//! the health counters, and says what to send back.
+//! the health counters, and says what to send back. The local frame is anchored only on a valid
+//! origin (the autopilot's EKF origin or home, else a position with a 3-D fix, never lat = lon =
+//! 0), and poses are given for captures only while the vehicle is airborne.
 
 use super::config::LinkConfig;
 use super::{LinkEvent, LinkHealth, VehicleState};
@@ -23,6 +25,97 @@ pub enum PoseQueryError {
     NotSynced,
     #[error(transparent)]
     Pose(#[from] PoseError),
+    /// `[mavlink] require_airborne`: no capture on the ground.
+    #[error("not airborne: {0}")]
+    NotAirborne(Airborne),
+}
+
+/// Where the local frame's anchor came from, in rising order of authority: a source replaces
+/// the anchor only if it is at least as authoritative.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub enum AnchorSource {
+    /// The first position with a 3-D fix, at the ground its relative altitude is measured
+    /// from (an autopilot that sends neither message below).
+    Position,
+    /// HOME_POSITION.
+    Home,
+    /// GPS_GLOBAL_ORIGIN: the EKF origin, around which the autopilot's own local frame is;
+    /// it stays put when home is reset at arming.
+    Origin,
+    /// `[mavlink] home_lat_deg` / `home_lon_deg`: fixed by the operator.
+    Config,
+}
+
+impl AnchorSource {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            AnchorSource::Position => "first 3-D fix",
+            AnchorSource::Home => "HOME_POSITION",
+            AnchorSource::Origin => "GPS_GLOBAL_ORIGIN",
+            AnchorSource::Config => "config",
+        }
+    }
+}
+
+/// Whether the vehicle is airborne, and if not, why (the text a STATUSTEXT carries).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Airborne {
+    Yes,
+    /// EXTENDED_SYS_STATE's landed state (MAV_LANDED_STATE) is not IN_AIR.
+    Landed(u8),
+    /// No landed state from the autopilot, and HEARTBEAT says disarmed.
+    Disarmed,
+    /// Armed, no landed state, and lower above home than `min_rel_alt_m` (both in cm).
+    Low {
+        rel_alt_cm: i32,
+        min_cm: i32,
+    },
+}
+
+impl Airborne {
+    pub fn is_airborne(self) -> bool {
+        self == Airborne::Yes
+    }
+
+    /// From what the autopilot said: its landed state where it sends one (anything but
+    /// UNDEFINED decides), otherwise armed and at least `min_rel_alt_m` above home.
+    pub fn judge(
+        landed: Option<MavLandedState>,
+        armed: bool,
+        rel_alt_m: f64,
+        min_rel_alt_m: f64,
+    ) -> Airborne {
+        match landed {
+            Some(MavLandedState::MAV_LANDED_STATE_IN_AIR) => Airborne::Yes,
+            Some(l) if l != MavLandedState::MAV_LANDED_STATE_UNDEFINED => Airborne::Landed(l as u8),
+            _ if !armed => Airborne::Disarmed,
+            // A NaN height is not airborne either.
+            _ if rel_alt_m.is_nan() || rel_alt_m < min_rel_alt_m => Airborne::Low {
+                rel_alt_cm: (rel_alt_m * 100.0).round() as i32,
+                min_cm: (min_rel_alt_m * 100.0).round() as i32,
+            },
+            _ => Airborne::Yes,
+        }
+    }
+}
+
+impl std::fmt::Display for Airborne {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match *self {
+            Airborne::Yes => write!(f, "airborne"),
+            Airborne::Landed(1) => write!(f, "on the ground (landed state)"),
+            Airborne::Landed(3) => write!(f, "taking off (landed state)"),
+            Airborne::Landed(4) => write!(f, "landing (landed state)"),
+            Airborne::Landed(l) => write!(f, "landed state {l}"),
+            Airborne::Disarmed => write!(f, "disarmed"),
+            Airborne::Low { rel_alt_cm, min_cm } => write!(
+                f,
+                "{:.1} m above home, below min_rel_alt_m {:.1} m",
+                rel_alt_cm as f64 / 100.0,
+                min_cm as f64 / 100.0
+            ),
+        }
+    }
 }
 
 /// What digesting a message asks the task to do.
@@ -43,6 +136,16 @@ pub struct Tracker {
     poses: PoseBuffer,
     gate: GlitchGate,
     frame: Option<LocalFrame>,
+    /// Where `frame` came from (set together).
+    anchor: Option<AnchorSource>,
+    /// GPS_RAW_INT's fix type, once the autopilot sends it.
+    gps_fix: Option<u8>,
+    armed: bool,
+    /// EXTENDED_SYS_STATE's landed state, once the autopilot sends it.
+    landed: Option<MavLandedState>,
+    rel_alt_m: f64,
+    /// The autopilot refused MAV_CMD_REQUEST_MESSAGE (UNSUPPORTED or DENIED): not asked again.
+    origin_refused: bool,
     pub health: LinkHealth,
     pub state: Option<VehicleState>,
     /// The autopilot we follow: (system id, component id).
@@ -68,6 +171,12 @@ impl Tracker {
         });
         Tracker {
             frame: cfg.home.map(LocalFrame::new),
+            anchor: cfg.home.map(|_| AnchorSource::Config),
+            gps_fix: None,
+            armed: false,
+            landed: None,
+            rel_alt_m: 0.0,
+            origin_refused: false,
             sync: TimeSync::new(TimeSyncConfig::default()),
             poses,
             gate,
@@ -96,13 +205,114 @@ impl Tracker {
         })
     }
 
-    /// The pose at a local monotonic instant.
+    /// The pose at a local monotonic instant, for a capture: none before a valid origin (no
+    /// position is kept until then) and, with `require_airborne`, none on the ground. The
+    /// airborne state is the latest known, not the one at `mono_ns` (it changes seldom).
     pub fn pose_at(&self, mono_ns: u64) -> Result<Pose, PoseQueryError> {
         let boot_ns = self
             .sync
             .local_to_remote(mono_ns)
             .ok_or(PoseQueryError::NotSynced)?;
-        Ok(self.poses.at(boot_ns)?)
+        let pose = self.poses.at(boot_ns)?;
+        match self.airborne() {
+            a if self.cfg.require_airborne && !a.is_airborne() => {
+                Err(PoseQueryError::NotAirborne(a))
+            }
+            _ => Ok(pose),
+        }
+    }
+
+    /// Whether the vehicle is airborne now, by what the autopilot last said.
+    pub fn airborne(&self) -> Airborne {
+        Airborne::judge(
+            self.landed,
+            self.armed,
+            self.rel_alt_m,
+            self.cfg.min_rel_alt_m,
+        )
+    }
+
+    /// Where the local frame is anchored (`None`: not yet, no pose is kept).
+    pub fn anchor(&self) -> Option<(AnchorSource, Geodetic)> {
+        Some((self.anchor?, self.frame?.home()))
+    }
+
+    /// Whether HOME_POSITION and GPS_GLOBAL_ORIGIN are still worth requesting: neither has
+    /// come (nor a configured home), and the autopilot has not refused the request.
+    pub fn wants_origin(&self) -> bool {
+        !self.origin_refused && self.anchor.is_none_or(|a| a < AnchorSource::Home)
+    }
+
+    /// MAV_CMD_REQUEST_MESSAGE for HOME_POSITION and GPS_GLOBAL_ORIGIN, addressed to the
+    /// autopilot (ArduPilot answers only once it has them, so the task repeats these).
+    pub fn origin_requests(&mut self) -> [MavMessage; 2] {
+        self.health.origin_requests += 2;
+        let (target_system, target_component) = self.autopilot.unwrap_or((0, 0));
+        // The origin first: answered in order, it anchors the frame before home could.
+        [49.0, 242.0].map(|id| {
+            MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
+                command: MavCmd::MAV_CMD_REQUEST_MESSAGE,
+                param1: id,
+                target_system,
+                target_component,
+                ..Default::default()
+            })
+        })
+    }
+
+    /// Publish a changed airborne state.
+    fn refresh_airborne(&mut self, out: &mut Vec<Reaction>) {
+        let a = self.airborne();
+        if let Some(s) = self.state.as_mut() {
+            s.armed = self.armed;
+            if s.airborne != a {
+                s.airborne = a;
+                out.push(Reaction::StateChanged);
+            }
+        }
+    }
+
+    /// Anchor the local frame on `home` from `source`, or move it there if the anchor in force
+    /// is not more authoritative. Kept positions are re-expressed in the new frame and the
+    /// glitch gate restarts from the next one, so a moved origin suspends nothing.
+    fn anchor_at(&mut self, source: AnchorSource, home: Geodetic, out: &mut Vec<Reaction>) {
+        if self.anchor.is_some_and(|a| a > source) {
+            return;
+        }
+        let new = LocalFrame::new(home);
+        let moved_m = match self.frame {
+            None => None,
+            Some(old) => {
+                let d = DVec3::from_array(old.to_ned(home)).length();
+                // Resent unchanged (ArduPilot resends home at arming): only the source is news.
+                if d < 0.01 {
+                    self.anchor = Some(source);
+                    if let Some(s) = self.state.as_mut() {
+                        s.origin_source = source;
+                    }
+                    return;
+                }
+                self.poses.map_positions(|p| {
+                    DVec3::from_array(new.to_ned(old.to_geodetic(p.to_array())))
+                });
+                self.gate.reset();
+                Some(d)
+            }
+        };
+        self.frame = Some(new);
+        self.anchor = Some(source);
+        self.health.origin_anchors += 1;
+        if let Some(s) = self.state.as_mut() {
+            s.pos_ned_m = new.to_ned(s.position);
+            s.home = home;
+            s.origin_source = source;
+            out.push(Reaction::StateChanged);
+        }
+        out.push(Reaction::Event(LinkEvent::OriginSet {
+            source,
+            home,
+            moved_m,
+        }));
     }
 
     fn time_ok(&mut self, boot_ms: u32, rx_ns: u64, out: &mut Vec<Reaction>) -> bool {
@@ -170,12 +380,35 @@ impl Tracker {
                     out.push(Reaction::RequestRates);
                 }
                 self.health.autopilot_heartbeats += 1;
-                let armed = hb
+                self.armed = hb
                     .base_mode
                     .contains(MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED);
-                if let Some(s) = self.state.as_mut() {
-                    s.armed = armed;
+                self.refresh_airborne(&mut out);
+            }
+            MavMessage::EXTENDED_SYS_STATE(e) if from_autopilot => {
+                self.landed = Some(e.landed_state);
+                self.refresh_airborne(&mut out);
+            }
+            MavMessage::HOME_POSITION(h) if from_autopilot => {
+                if let Some(g) = valid_geodetic(h.latitude, h.longitude, h.altitude) {
+                    self.anchor_at(AnchorSource::Home, g, &mut out);
                 }
+            }
+            MavMessage::GPS_GLOBAL_ORIGIN(o) if from_autopilot => {
+                if let Some(g) = valid_geodetic(o.latitude, o.longitude, o.altitude) {
+                    self.anchor_at(AnchorSource::Origin, g, &mut out);
+                }
+            }
+            MavMessage::CAMERA_FEEDBACK(c) if from_autopilot => {
+                self.health.camera_feedbacks += 1;
+                out.push(Reaction::Event(LinkEvent::CameraFeedback {
+                    img_idx: c.img_idx,
+                    gps_time_usec: c.time_usec,
+                    lat_deg: c.lat as f64 * 1e-7,
+                    lon_deg: c.lng as f64 * 1e-7,
+                    alt_msl_m: c.alt_msl,
+                    alt_rel_m: c.alt_rel,
+                }));
             }
             MavMessage::TIMESYNC(t) if t.tc1 == 0 => {
                 out.push(Reaction::Reply(Box::new(MavMessage::TIMESYNC(
@@ -252,6 +485,7 @@ impl Tracker {
                 self.on_attitude(a.time_boot_ms, q, rates, &mut out);
             }
             MavMessage::GPS_RAW_INT(g) if from_autopilot => {
+                self.gps_fix = Some(g.fix_type as u8);
                 if let Some(s) = self.state.as_mut() {
                     s.gps_fix = g.fix_type as u8;
                 }
@@ -263,6 +497,17 @@ impl Tracker {
             {
                 self.pending_rates.pop_front();
                 self.health.rates_acked = self.pending_rates.is_empty();
+            }
+            // The link's only REQUEST_MESSAGE to the autopilot is for the origin.
+            MavMessage::COMMAND_ACK(a)
+                if from_autopilot
+                    && a.command == MavCmd::MAV_CMD_REQUEST_MESSAGE
+                    && matches!(
+                        a.result,
+                        MavResult::MAV_RESULT_UNSUPPORTED | MavResult::MAV_RESULT_DENIED
+                    ) =>
+            {
+                self.origin_refused = true;
             }
             MavMessage::CAMERA_TRIGGER(c) if from_autopilot => {
                 out.push(Reaction::Event(LinkEvent::CameraTrigger {
@@ -298,12 +543,14 @@ impl Tracker {
             && self.autopilot.is_none_or(|(s, _)| u32::from(s) == sysid)
     }
 
-    /// A COMMAND_LONG addressed to our component (or to all of our system's), as an event.
+    /// A COMMAND_LONG addressed to our component (or to all of our system's, or broadcast), as
+    /// an event. Broadcast matters: ArduPilot's MAVLinkCamV2 backend sent IMAGE_START_CAPTURE
+    /// with target 0/0 on the camera's link before it filled in the target (docs/link.md).
     fn command_for_us(&self, h: &MavHeader, msg: &MavMessage, trust: Trust) -> Option<LinkEvent> {
         let MavMessage::COMMAND_LONG(c) = msg else {
             return None;
         };
-        let ours = c.target_system == self.cfg.system_id
+        let ours = (c.target_system == self.cfg.system_id || c.target_system == 0)
             && (c.target_component == self.cfg.component_id || c.target_component == 0);
         ours.then_some(LinkEvent::Command {
             system_id: h.system_id as u8,
@@ -348,14 +595,32 @@ impl Tracker {
             self.health.rejected_position += 1;
             return;
         }
-        // Home: where the first fix was, at the ground the autopilot measures
-        // relative altitude from (alfd may start in the air).
-        let frame = *self.frame.get_or_insert_with(|| {
-            LocalFrame::new(Geodetic {
-                alt_m: g.alt_m - p.relative_alt as f64 * 1e-3,
+        // ArduPilot sends lat = lon = 0 until its EKF has an origin: no position at all.
+        if p.lat == 0 && p.lon == 0 {
+            self.health.positions_without_origin += 1;
+            return;
+        }
+        self.rel_alt_m = p.relative_alt as f64 * 1e-3;
+        if self.frame.is_none() {
+            // Neither origin nor home yet: the first position with a 3-D fix (where
+            // GPS_RAW_INT says), at the ground relative altitude is measured from (alfd may
+            // start in the air). HOME_POSITION or GPS_GLOBAL_ORIGIN re-anchor it when they come.
+            if self
+                .gps_fix
+                .is_some_and(|f| f < GpsFixType::GPS_FIX_TYPE_3D_FIX as u8)
+            {
+                self.health.positions_without_origin += 1;
+                return;
+            }
+            let home = Geodetic {
+                alt_m: g.alt_m - self.rel_alt_m,
                 ..g
-            })
-        });
+            };
+            self.anchor_at(AnchorSource::Position, home, out);
+        }
+        let Some(frame) = self.frame else {
+            return;
+        };
         let pos = DVec3::from_array(frame.to_ned(g));
         let vel = DVec3::new(p.vx as f64, p.vy as f64, p.vz as f64) * 0.01;
         let time_ns = p.time_boot_ms as u64 * 1_000_000;
@@ -403,13 +668,28 @@ impl Tracker {
             pos_ned_m: pos.to_array(),
             vel_ned_mps: vel.to_array(),
             home: frame.home(),
+            origin_source: self.anchor.unwrap_or(AnchorSource::Position),
+            rel_alt_m: self.rel_alt_m,
+            airborne: self.airborne(),
             q: prev.as_ref().map_or([1.0, 0.0, 0.0, 0.0], |s| s.q),
             rpy_deg: prev.as_ref().map_or([0.0; 3], |s| s.rpy_deg),
-            gps_fix: prev.as_ref().map_or(0, |s| s.gps_fix),
-            armed: prev.as_ref().is_some_and(|s| s.armed),
+            gps_fix: self.gps_fix.unwrap_or(0),
+            armed: self.armed,
         });
         out.push(Reaction::StateChanged);
     }
+}
+
+/// A position from degE7 and mm, unless it is lat = lon = 0 (nothing known) or out of range.
+fn valid_geodetic(lat_e7: i32, lon_e7: i32, alt_mm: i32) -> Option<Geodetic> {
+    let g = Geodetic {
+        lat_deg: lat_e7 as f64 * 1e-7,
+        lon_deg: lon_e7 as f64 * 1e-7,
+        alt_m: alt_mm as f64 * 1e-3,
+    };
+    let known = (lat_e7, lon_e7) != (0, 0);
+    (known && (-90.0..=90.0).contains(&g.lat_deg) && (-180.0..=180.0).contains(&g.lon_deg))
+        .then_some(g)
 }
 
 #[cfg(test)]
@@ -563,6 +843,403 @@ mod tests {
                 ts1: 77,
                 ..
             })
+        ));
+    }
+}
+
+#[cfg(test)]
+mod origin_tests {
+    use super::*;
+
+    const MS: u64 = 1_000_000;
+    /// The autopilot's boot clock reads local time minus this.
+    const OFFSET_NS: u64 = 500 * MS;
+    const AP: (u32, u8) = (1, 1);
+    const HOME: (f64, f64, f64) = (47.397_742, 8.545_594, 488.0);
+
+    fn h() -> MavHeader {
+        MavHeader {
+            system_id: AP.0,
+            component_id: AP.1,
+            sequence: 0,
+        }
+    }
+
+    /// A tracker in time sync with an autopilot that has sent one HEARTBEAT (`armed`).
+    fn synced(armed: bool) -> Tracker {
+        let mut t = Tracker::new(LinkConfig::for_address("udpin:127.0.0.1:0"));
+        t.on_message(&h(), &heartbeat(armed), 1_000);
+        for i in 0..5u64 {
+            let sent = 1_000 * MS + i * 100 * MS;
+            t.timesync_request(sent);
+            let reply = MavMessage::TIMESYNC(TIMESYNC_DATA {
+                tc1: (sent + MS / 2 - OFFSET_NS) as i64,
+                ts1: sent as i64,
+                target_system: 0,
+                target_component: 0,
+            });
+            t.on_message(&h(), &reply, sent + MS);
+        }
+        assert!(t.health.synced);
+        t
+    }
+
+    fn heartbeat(armed: bool) -> MavMessage {
+        MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+            base_mode: if armed {
+                MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED
+            } else {
+                MavModeFlag::empty()
+            },
+            ..Default::default()
+        })
+    }
+
+    fn fix(fix_type: GpsFixType) -> MavMessage {
+        MavMessage::GPS_RAW_INT(GPS_RAW_INT_DATA {
+            fix_type,
+            ..Default::default()
+        })
+    }
+
+    /// GLOBAL_POSITION_INT at boot time `boot_ms`, `north_m`/`east_m` from HOME, `rel_alt_m`
+    /// above it, flying north at 10 m/s; lat = lon = 0 when `zero`.
+    fn position(boot_ms: u32, north_m: f64, east_m: f64, rel_alt_m: f64, zero: bool) -> MavMessage {
+        let g = LocalFrame::new(Geodetic {
+            lat_deg: HOME.0,
+            lon_deg: HOME.1,
+            alt_m: HOME.2,
+        })
+        .to_geodetic([north_m, east_m, -rel_alt_m]);
+        let (lat, lon) = if zero {
+            (0, 0)
+        } else {
+            (
+                (g.lat_deg * 1e7).round() as i32,
+                (g.lon_deg * 1e7).round() as i32,
+            )
+        };
+        MavMessage::GLOBAL_POSITION_INT(GLOBAL_POSITION_INT_DATA {
+            time_boot_ms: boot_ms,
+            lat,
+            lon,
+            alt: (g.alt_m * 1e3).round() as i32,
+            relative_alt: (rel_alt_m * 1e3).round() as i32,
+            vx: 1000,
+            ..Default::default()
+        })
+    }
+
+    fn attitude(boot_ms: u32) -> MavMessage {
+        MavMessage::ATTITUDE_QUATERNION(ATTITUDE_QUATERNION_DATA {
+            time_boot_ms: boot_ms,
+            q1: 1.0,
+            ..Default::default()
+        })
+    }
+
+    /// The local instant a boot-time sample was taken at.
+    fn local(boot_ms: u32) -> u64 {
+        boot_ms as u64 * MS + OFFSET_NS
+    }
+
+    fn feed(t: &mut Tracker, m: &MavMessage, boot_ms: u32) -> Vec<Reaction> {
+        t.on_message(&h(), m, local(boot_ms) + MS)
+    }
+
+    fn origin_msg(north_m: f64, east_m: f64) -> MavMessage {
+        let g = LocalFrame::new(Geodetic {
+            lat_deg: HOME.0,
+            lon_deg: HOME.1,
+            alt_m: HOME.2,
+        })
+        .to_geodetic([north_m, east_m, 0.0]);
+        MavMessage::GPS_GLOBAL_ORIGIN(GPS_GLOBAL_ORIGIN_DATA {
+            latitude: (g.lat_deg * 1e7).round() as i32,
+            longitude: (g.lon_deg * 1e7).round() as i32,
+            altitude: (g.alt_m * 1e3).round() as i32,
+            time_usec: 0,
+        })
+    }
+
+    #[test]
+    fn zero_positions_never_anchor_and_the_origin_anchors_at_once() {
+        let mut t = synced(true);
+        // ArduPilot before its EKF origin: no fix, then a fix while positions still read 0, 0.
+        feed(&mut t, &fix(GpsFixType::GPS_FIX_TYPE_NO_FIX), 2_000);
+        for k in 0..20u32 {
+            if k == 10 {
+                feed(
+                    &mut t,
+                    &fix(GpsFixType::GPS_FIX_TYPE_3D_FIX),
+                    2_000 + k * 100,
+                );
+            }
+            feed(
+                &mut t,
+                &position(2_000 + k * 100, 0.0, 0.0, 0.0, true),
+                2_000 + k * 100,
+            );
+            feed(&mut t, &attitude(2_000 + k * 100), 2_000 + k * 100);
+        }
+        assert_eq!(t.health.positions_without_origin, 20);
+        assert_eq!(t.health.positions_accepted, 0);
+        assert!(t.state.is_none(), "no vehicle state before an origin");
+        assert!(t.anchor().is_none());
+        assert!(matches!(
+            t.pose_at(local(3_900)),
+            Err(PoseQueryError::Pose(_))
+        ));
+        assert!(t.wants_origin());
+        // The origin: the frame is anchored there, announced once.
+        let got = feed(&mut t, &origin_msg(0.0, 0.0), 4_000);
+        assert!(
+            got.iter().any(|r| matches!(
+                r,
+                Reaction::Event(LinkEvent::OriginSet {
+                    source: AnchorSource::Origin,
+                    moved_m: None,
+                    ..
+                })
+            )),
+            "{got:?}"
+        );
+        assert!(!t.wants_origin());
+        // The first real position, 100 m north and 60 m up: the pose is there at once.
+        for k in 0..3u32 {
+            let b = 4_100 + k * 100;
+            feed(&mut t, &position(b, 100.0 + k as f64, 0.0, 60.0, false), b);
+            feed(&mut t, &attitude(b), b);
+        }
+        let s = t.state.as_ref().unwrap();
+        assert!((s.home.lat_deg - HOME.0).abs() < 1e-7 && (s.home.lon_deg - HOME.1).abs() < 1e-7);
+        assert_eq!(s.origin_source, AnchorSource::Origin);
+        assert!((s.pos_ned_m[0] - 102.0).abs() < 0.05, "{:?}", s.pos_ned_m);
+        assert!((s.pos_ned_m[2] + 60.0).abs() < 0.05, "{:?}", s.pos_ned_m);
+        let p = t
+            .pose_at(local(4_250))
+            .expect("a pose right after the origin");
+        assert!((p.pos_ned_m.x - 101.5).abs() < 0.05, "{:?}", p.pos_ned_m);
+        assert_eq!(t.health.glitches, 0);
+        assert_eq!(t.health.origin_anchors, 1);
+    }
+
+    #[test]
+    fn a_position_without_a_3d_fix_does_not_anchor() {
+        let mut t = synced(true);
+        feed(&mut t, &fix(GpsFixType::GPS_FIX_TYPE_2D_FIX), 2_000);
+        feed(&mut t, &position(2_100, 5.0, 0.0, 0.0, false), 2_100);
+        assert!(t.anchor().is_none());
+        // An autopilot that does not answer REQUEST_MESSAGE is not asked again.
+        assert!(t.wants_origin());
+        let refused = MavMessage::COMMAND_ACK(COMMAND_ACK_DATA {
+            command: MavCmd::MAV_CMD_REQUEST_MESSAGE,
+            result: MavResult::MAV_RESULT_UNSUPPORTED,
+            ..Default::default()
+        });
+        feed(&mut t, &refused, 2_120);
+        assert!(!t.wants_origin());
+        feed(&mut t, &fix(GpsFixType::GPS_FIX_TYPE_3D_FIX), 2_150);
+        feed(&mut t, &position(2_200, 5.0, 0.0, 0.0, false), 2_200);
+        let (source, home) = t.anchor().unwrap();
+        assert_eq!(source, AnchorSource::Position);
+        // At the first fixed position, on the ground relative altitude is measured from.
+        let d = LocalFrame::new(Geodetic {
+            lat_deg: HOME.0,
+            lon_deg: HOME.1,
+            alt_m: HOME.2,
+        })
+        .to_ned(home);
+        assert!((d[0] - 5.0).abs() < 0.02 && d[1].abs() < 0.02 && d[2].abs() < 0.01);
+    }
+
+    #[test]
+    fn a_moved_origin_reanchors_without_a_suspension() {
+        let mut t = synced(true);
+        feed(&mut t, &fix(GpsFixType::GPS_FIX_TYPE_3D_FIX), 2_000);
+        // Anchored on the first position (at HOME, 0 m up), then flying north at 10 m/s.
+        for k in 0..10u32 {
+            let b = 2_000 + k * 100;
+            feed(&mut t, &position(b, k as f64, 0.0, 30.0, false), b);
+            feed(&mut t, &attitude(b), b);
+        }
+        assert_eq!(t.anchor().unwrap().0, AnchorSource::Position);
+        // The autopilot's origin is 40 m east of where alfd anchored.
+        let got = feed(&mut t, &origin_msg(0.0, 40.0), 2_950);
+        let moved = got.iter().find_map(|r| match r {
+            Reaction::Event(LinkEvent::OriginSet { moved_m, .. }) => *moved_m,
+            _ => None,
+        });
+        assert!((moved.expect("an OriginSet event") - 40.0).abs() < 0.05);
+        // The poses already kept are in the new frame: no gap, no glitch, no suspension.
+        let p = t.pose_at(local(2_850)).expect("a pose at once");
+        assert!((p.pos_ned_m.x - 8.5).abs() < 0.05, "{:?}", p.pos_ned_m);
+        assert!((p.pos_ned_m.y + 40.0).abs() < 0.05, "{:?}", p.pos_ned_m);
+        for k in 10..15u32 {
+            let b = 2_000 + k * 100;
+            feed(&mut t, &position(b, k as f64, 0.0, 30.0, false), b);
+            feed(&mut t, &attitude(b), b);
+        }
+        assert_eq!(t.health.glitches, 0, "the re-anchor is no GPS glitch");
+        assert_eq!(t.health.positions_accepted, 15);
+        let p = t.pose_at(local(3_350)).unwrap();
+        assert!((p.pos_ned_m.x - 13.5).abs() < 0.05 && (p.pos_ned_m.y + 40.0).abs() < 0.05);
+        // Home resent where the origin already is: nothing moves. A less authoritative
+        // HOME_POSITION elsewhere does not move the EKF origin's frame either.
+        let home = |east: f64| {
+            let MavMessage::GPS_GLOBAL_ORIGIN(o) = origin_msg(0.0, east) else {
+                unreachable!()
+            };
+            MavMessage::HOME_POSITION(HOME_POSITION_DATA {
+                latitude: o.latitude,
+                longitude: o.longitude,
+                altitude: o.altitude,
+                ..Default::default()
+            })
+        };
+        assert!(feed(&mut t, &home(40.0), 3_400).is_empty());
+        assert!(feed(&mut t, &home(45.0), 3_450).is_empty());
+        assert_eq!(t.health.origin_anchors, 2);
+        assert_eq!(t.anchor().unwrap().0, AnchorSource::Origin);
+    }
+
+    #[test]
+    fn airborne_by_landed_state_else_armed_and_height() {
+        use MavLandedState::*;
+        let j = Airborne::judge;
+        assert_eq!(
+            j(Some(MAV_LANDED_STATE_IN_AIR), false, 0.0, 2.0),
+            Airborne::Yes
+        );
+        assert_eq!(
+            j(Some(MAV_LANDED_STATE_ON_GROUND), true, 50.0, 2.0),
+            Airborne::Landed(1)
+        );
+        assert_eq!(
+            j(Some(MAV_LANDED_STATE_TAKEOFF), true, 50.0, 2.0),
+            Airborne::Landed(3)
+        );
+        assert_eq!(j(None, false, 50.0, 2.0), Airborne::Disarmed);
+        assert_eq!(
+            j(None, true, 1.5, 2.0),
+            Airborne::Low {
+                rel_alt_cm: 150,
+                min_cm: 200
+            }
+        );
+        assert_eq!(j(None, true, 2.0, 2.0), Airborne::Yes);
+        assert_eq!(
+            j(Some(MAV_LANDED_STATE_UNDEFINED), true, 2.0, 2.0),
+            Airborne::Yes
+        );
+        assert!(!j(None, true, f64::NAN, 0.0).is_airborne());
+        assert_eq!(
+            Airborne::Low {
+                rel_alt_cm: 150,
+                min_cm: 200
+            }
+            .to_string(),
+            "1.5 m above home, below min_rel_alt_m 2.0 m"
+        );
+    }
+
+    #[test]
+    fn no_pose_for_a_capture_until_airborne() {
+        let mut t = synced(false);
+        feed(&mut t, &fix(GpsFixType::GPS_FIX_TYPE_3D_FIX), 2_000);
+        let ground = |t: &mut Tracker, from: u32| {
+            for k in 0..3u32 {
+                let b = from + k * 100;
+                feed(t, &position(b, 0.0, 0.0, 0.0, false), b);
+                feed(t, &attitude(b), b);
+            }
+        };
+        ground(&mut t, 2_000);
+        let err = t.pose_at(local(2_150)).unwrap_err();
+        assert_eq!(err, PoseQueryError::NotAirborne(Airborne::Disarmed));
+        assert_eq!(err.to_string(), "not airborne: disarmed");
+        // Armed, still on the ground by its landed state.
+        feed(&mut t, &heartbeat(true), 2_300);
+        let landed = |s| {
+            MavMessage::EXTENDED_SYS_STATE(EXTENDED_SYS_STATE_DATA {
+                landed_state: s,
+                ..Default::default()
+            })
+        };
+        feed(
+            &mut t,
+            &landed(MavLandedState::MAV_LANDED_STATE_ON_GROUND),
+            2_300,
+        );
+        ground(&mut t, 2_300);
+        assert_eq!(
+            t.pose_at(local(2_450)).unwrap_err().to_string(),
+            "not airborne: on the ground (landed state)"
+        );
+        assert_eq!(t.state.as_ref().unwrap().airborne, Airborne::Landed(1));
+        let got = feed(
+            &mut t,
+            &landed(MavLandedState::MAV_LANDED_STATE_IN_AIR),
+            2_600,
+        );
+        assert!(got.contains(&Reaction::StateChanged));
+        ground(&mut t, 2_600);
+        assert!(t.pose_at(local(2_750)).is_ok());
+        // Without the requirement, the ground is no reason.
+        let mut cfg = LinkConfig::for_address("udpin:127.0.0.1:0");
+        cfg.require_airborne = false;
+        t.cfg = cfg;
+        feed(&mut t, &heartbeat(false), 2_900);
+        feed(
+            &mut t,
+            &landed(MavLandedState::MAV_LANDED_STATE_ON_GROUND),
+            2_900,
+        );
+        assert!(t.pose_at(local(2_750)).is_ok());
+    }
+
+    #[test]
+    fn camera_feedback_is_counted_and_passed_on() {
+        let mut t = synced(true);
+        let m = MavMessage::CAMERA_FEEDBACK(CAMERA_FEEDBACK_DATA {
+            time_usec: 1_700_000_000_000_000,
+            img_idx: 7,
+            lat: 473_977_420,
+            lng: 85_455_940,
+            alt_msl: 528.0,
+            alt_rel: 40.0,
+            ..Default::default()
+        });
+        let got = feed(&mut t, &m, 2_000);
+        assert_eq!(t.health.camera_feedbacks, 1);
+        assert!(matches!(
+            got.as_slice(),
+            [Reaction::Event(LinkEvent::CameraFeedback {
+                img_idx: 7,
+                gps_time_usec: 1_700_000_000_000_000,
+                ..
+            })]
+        ));
+    }
+
+    #[test]
+    fn a_broadcast_command_is_for_us() {
+        // Older ArduPilot: IMAGE_START_CAPTURE from MAVLinkCamV2 with target 0/0.
+        let mut t = synced(true);
+        let m = MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
+            command: MavCmd::MAV_CMD_IMAGE_START_CAPTURE,
+            param3: 1.0,
+            param4: 1.0,
+            ..Default::default()
+        });
+        let got = feed(&mut t, &m, 2_000);
+        assert!(matches!(
+            got.as_slice(),
+            [Reaction::Event(LinkEvent::Command {
+                command: 2000,
+                trust: Trust::Accepted,
+                ..
+            })]
         ));
     }
 }

@@ -2,7 +2,8 @@
 //! messages, commands, the heartbeat and TIMESYNC ticks, and shutdown. A reader task per
 //! connection does the reads, each wrapped in a timeout; every send goes through `send_checked`,
 //! the one place the allow-list is enforced. With signing configured, rust-mavlink signs every
-//! frame sent and drops, silently, every frame received that fails the check.
+//! frame sent and drops, silently, every frame received that fails the check. Frames are read
+//! raw and decoded here, so the tap (`telemetry.tlog`) gets each one's bytes as received.
 
 use super::clock::mono_ns;
 use super::config::LinkConfig;
@@ -13,7 +14,8 @@ use crate::core::backoff::reconnect_delay_ms;
 use mavlink::dialects::ardupilotmega::*;
 use mavlink::error::MessageReadError;
 use mavlink::{
-    AsyncConnection, AsyncMavConnection, MavHeader, MavlinkVersion, Message, SigningConfig,
+    AsyncConnection, AsyncMavConnection, MAVLinkMessageRaw, MavHeader, MavlinkVersion, Message,
+    SigningConfig,
 };
 use std::future::Future;
 use std::sync::Arc;
@@ -28,6 +30,9 @@ const WRITE_TIMEOUT: Duration = Duration::from_secs(1);
 const PUBLISH_EVERY: Duration = Duration::from_millis(50);
 const UNSYNCED_TIMESYNC_EVERY: Duration = Duration::from_millis(100);
 const RATE_RETRIES: u32 = 10;
+/// HOME_POSITION / GPS_GLOBAL_ORIGIN requests: every heartbeat tick (1 s) this many times, then
+/// every 10th tick (an EKF may take minutes to get its origin).
+const ORIGIN_FAST_TRIES: u32 = 30;
 
 /// Failures that stop the link (everything else is retried).
 #[derive(Debug, thiserror::Error)]
@@ -37,13 +42,19 @@ pub enum LinkError {
 }
 
 enum Rx {
-    Msg(MavHeader, Box<MavMessage>, u64),
-    ParseError,
+    /// A CRC-valid frame (signature checked when signing): its bytes as received, and the
+    /// message when this build can decode it.
+    Frame {
+        header: MavHeader,
+        msg: Option<Box<MavMessage>>,
+        bytes: Vec<u8>,
+        mono_ns: u64,
+    },
     Closed,
 }
 
-/// One received message, re-encoded as a MAVLink 2 frame (same header: system,
-/// component, sequence), for `telemetry.tlog`.
+/// One received frame, byte for byte as it came (MAVLink 1 stays 1, signatures kept; frames
+/// whose payload does not decode too), for `telemetry.tlog`.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct TapFrame {
     pub mono_ns: u64,
@@ -61,6 +72,7 @@ pub struct Link {
     rate_tries: u32,
     tap: Option<mpsc::Sender<TapFrame>>,
     tap_dropped: u64,
+    origin_tries: u32,
 }
 
 /// Build the link: the task to run, the handle for the rest of the daemon, and its events.
@@ -79,6 +91,7 @@ pub fn new(cfg: LinkConfig) -> (Link, LinkHandle, mpsc::Receiver<LinkEvent>) {
         rate_tries: 0,
         tap: None,
         tap_dropped: 0,
+        origin_tries: 0,
     };
     (
         link,
@@ -91,12 +104,55 @@ pub fn new(cfg: LinkConfig) -> (Link, LinkHandle, mpsc::Receiver<LinkEvent>) {
     )
 }
 
-async fn read_loop(conn: Conn, tx: mpsc::Sender<Rx>, read_timeout: Duration) {
+/// A raw frame's header, bytes, and message if it decodes. rust-mavlink's decoder only passes
+/// frames whose id the dialect knows (it needs the id's CRC_EXTRA to check the CRC), so an id
+/// outside ardupilotmega never gets here; a known id whose payload fails to decode does.
+fn split_raw(raw: &MAVLinkMessageRaw) -> (MavHeader, Option<MavMessage>, Vec<u8>) {
+    let header = MavHeader {
+        system_id: raw.system_id(),
+        component_id: raw.component_id(),
+        sequence: raw.sequence(),
+    };
+    let bytes = match raw {
+        MAVLinkMessageRaw::V1(f) => f.raw_bytes().to_vec(),
+        MAVLinkMessageRaw::V2(f) => f.raw_bytes().to_vec(),
+    };
+    let msg = MavMessage::parse(raw.version(), raw.message_id(), raw.payload()).ok();
+    (header, msg, bytes)
+}
+
+/// The device of a `serial:PATH:BAUD` address.
+fn serial_path(address: &str) -> Option<std::path::PathBuf> {
+    let rest = address.strip_prefix("serial:")?;
+    let (path, _baud) = rest.rsplit_once(':')?;
+    Some(path.into())
+}
+
+async fn read_loop(
+    conn: Conn,
+    tx: mpsc::Sender<Rx>,
+    read_timeout: Duration,
+    serial: Option<std::path::PathBuf>,
+) {
     loop {
-        let rx = match timeout(read_timeout, conn.try_recv()).await {
+        let rx = match timeout(read_timeout, conn.recv_raw()).await {
+            // rust-mavlink's raw read retries every serial error but end-of-file, so an
+            // unplugged device (EIO) never ends it: a read that times out on a device that is
+            // gone closes the connection (else silence_reconnect_ms would, later).
+            Err(_) if serial.as_ref().is_some_and(|p| !p.exists()) => Rx::Closed,
             Err(_) => continue,
-            Ok(Ok((h, m))) => Rx::Msg(h, Box::new(m), mono_ns()),
-            Ok(Err(MessageReadError::Parse(_))) => Rx::ParseError,
+            Ok(Ok(raw)) => {
+                let (header, msg, bytes) = split_raw(&raw);
+                Rx::Frame {
+                    header,
+                    msg: msg.map(Box::new),
+                    bytes,
+                    mono_ns: mono_ns(),
+                }
+            }
+            // Raw reads do not decode, so a parse error cannot come from them; anything
+            // else is the transport.
+            Ok(Err(MessageReadError::Parse(_))) => continue,
             Ok(Err(MessageReadError::Io(_))) => Rx::Closed,
         };
         let closed = matches!(rx, Rx::Closed);
@@ -196,7 +252,12 @@ impl Link {
         shutdown: &mut std::pin::Pin<&mut F>,
     ) -> bool {
         let (rx_tx, mut rx) = mpsc::channel(256);
-        let reader = tokio::spawn(read_loop(conn.clone(), rx_tx, self.cfg.read_timeout));
+        let reader = tokio::spawn(read_loop(
+            conn.clone(),
+            rx_tx,
+            self.cfg.read_timeout,
+            serial_path(&self.cfg.address),
+        ));
         let _abort = AbortOnDrop(reader);
         self.publish_health();
         self.heartbeat(&conn).await;
@@ -215,13 +276,19 @@ impl Link {
                     return true;
                 }
                 r = rx.recv() => match r {
-                    Some(Rx::Msg(h, m, t)) => self.on_message(&conn, &h, &m, t).await,
-                    Some(Rx::ParseError) => self.tracker.health.parse_errors += 1,
+                    Some(Rx::Frame { header, msg, bytes, mono_ns }) => {
+                        self.tap_frame(bytes, mono_ns);
+                        match msg {
+                            Some(m) => self.on_message(&conn, &header, &m, mono_ns).await,
+                            None => self.tracker.health.parse_errors += 1,
+                        }
+                    }
                     Some(Rx::Closed) | None => return false,
                 },
                 Some(c) = self.commands.recv() => self.serve(c, Some(&conn)).await,
                 _ = heartbeat.tick() => {
                     self.heartbeat(&conn).await;
+                    self.request_origin(&conn).await;
                     if !self.tracker.pending_rates.is_empty() && self.rate_tries < RATE_RETRIES {
                         self.rate_tries += 1;
                         self.send_rate_requests(&conn).await;
@@ -248,21 +315,32 @@ impl Link {
         }
     }
 
-    async fn on_message(&mut self, conn: &Conn, h: &MavHeader, m: &MavMessage, rx_ns: u64) {
+    /// Copy a received frame to the tap, never waiting (a full tap drops and counts it).
+    fn tap_frame(&mut self, bytes: Vec<u8>, mono_ns: u64) {
         if let Some(tap) = &self.tap {
-            let mut bytes = Vec::with_capacity(64);
-            if mavlink::write_v2_msg(&mut bytes, *h, m).is_ok()
-                && tap
-                    .try_send(TapFrame {
-                        mono_ns: rx_ns,
-                        bytes,
-                    })
-                    .is_err()
-            {
+            if tap.try_send(TapFrame { mono_ns, bytes }).is_err() {
                 self.tap_dropped += 1;
                 self.tracker.health.events_dropped += 1;
             }
         }
+    }
+
+    /// Ask the autopilot for its home and EKF origin until one of them has anchored the local
+    /// frame: ArduPilot answers MAV_CMD_REQUEST_MESSAGE for them only once it has them.
+    async fn request_origin(&mut self, conn: &Conn) {
+        if self.tracker.autopilot.is_none() || !self.tracker.wants_origin() {
+            return;
+        }
+        self.origin_tries = self.origin_tries.saturating_add(1);
+        if self.origin_tries > ORIGIN_FAST_TRIES && self.origin_tries % 10 != 0 {
+            return;
+        }
+        for msg in self.tracker.origin_requests() {
+            let _ = self.send_checked(Some(conn), &msg).await;
+        }
+    }
+
+    async fn on_message(&mut self, conn: &Conn, h: &MavHeader, m: &MavMessage, rx_ns: u64) {
         let mut publish = false;
         for r in self.tracker.on_message(h, m, rx_ns) {
             match r {
@@ -275,7 +353,11 @@ impl Link {
                         self.tracker.health.events_dropped += 1;
                     }
                 }
-                Reaction::RequestRates => self.request_rates(conn).await,
+                Reaction::RequestRates => {
+                    self.request_rates(conn).await;
+                    self.origin_tries = 0;
+                    self.request_origin(conn).await;
+                }
                 Reaction::StateChanged => {
                     self.state_tx.send_replace(self.tracker.state.clone());
                 }
