@@ -328,6 +328,12 @@ impl Estimator {
         &self.params
     }
 
+    /// Scan along another image axis from the next frame on (the direction of
+    /// flight moved in the image: crabbing, sideways flight).
+    pub fn set_track_axis(&mut self, axis: super::depth::TrackAxis) {
+        self.params.track_axis = axis;
+    }
+
     /// The estimate at the configured decimation (`Auto` calibrates on this frame).
     pub fn estimate(
         &mut self,

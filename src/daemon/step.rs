@@ -11,8 +11,8 @@ use crate::core::closedloop::{ClosedLoop, ClosedLoopTargets, DepthSnapshot, Meas
 use crate::core::geo::LocalFrame;
 use crate::core::pose::Pose;
 use crate::core::trigger::{Capture, Decision, Opportunity, Trigger, TriggerParams};
-use crate::core::{DepthImage, Estimate, Estimator, EstimatorParams, Intrinsics};
-use glam::{DMat3, EulerRot};
+use crate::core::{DepthImage, Estimate, Estimator, EstimatorParams, Intrinsics, TrackAxis};
+use glam::{DMat3, DVec3, EulerRot};
 
 /// Samples of a frame the closed loop keeps, about (a 640 × 480 frame every
 /// 8th pixel): its cost per frame is a few of these warps.
@@ -69,6 +69,8 @@ pub struct Pipeline {
     seq: u64,
     /// `Some` when `[trigger] closed_loop` is on.
     closed_loop: Option<ClosedLoop>,
+    /// The configured scan axis, used while the vehicle hovers.
+    fixed_axis: TrackAxis,
 }
 
 impl Pipeline {
@@ -79,6 +81,7 @@ impl Pipeline {
         local: LocalFrame,
     ) -> Self {
         Pipeline {
+            fixed_axis: estimator.track_axis,
             estimator: Estimator::new(estimator),
             trigger: Trigger::new(trigger),
             params,
@@ -103,6 +106,22 @@ impl Pipeline {
         &self.params
     }
 
+    pub fn local(&self) -> &LocalFrame {
+        &self.local
+    }
+
+    /// The autopilot's origin moved: positions are expressed around the new
+    /// home from now on. The shift is not distance flown (the odometer
+    /// restarts its differences at the next frame), and the closed loop's
+    /// capture, in the old frame, is forgotten.
+    pub fn set_local(&mut self, local: LocalFrame) {
+        self.local = local;
+        self.last_ne_m = None;
+        if let Some(cl) = &mut self.closed_loop {
+            *cl = ClosedLoop::default();
+        }
+    }
+
     pub fn model(&self) -> &'static str {
         self.estimator.params().model.as_str()
     }
@@ -123,9 +142,12 @@ impl Pipeline {
             self.odometer_m += (ne[0] - last[0]).hypot(ne[1] - last[1]);
         }
         self.last_ne_m = Some(ne);
-        let (_, pitch, _) = pose.q.to_euler(EulerRot::ZYX);
-        // A belly camera tilts forward as the nose goes up.
-        let camera_pitch = self.params.camera_mount_pitch_rad + pitch;
+        // Scan along the image axis nearest the direction of flight, with the
+        // camera's tilt along it (a belly camera tilts forward as the nose goes up).
+        let cam_to_ned =
+            DMat3::from_quat(pose.q) * DMat3::from_rotation_y(self.params.camera_mount_pitch_rad);
+        let (axis, camera_pitch) = flight_axis(&cam_to_ned, pose.vel_ned_mps, self.fixed_axis);
+        self.estimator.set_track_axis(axis);
         let estimate = match f.depth {
             None => Estimate::without_depth(camera_pitch),
             Some(depth) => match self.estimator.estimate(depth, f.intrinsics, camera_pitch) {
@@ -148,8 +170,7 @@ impl Pipeline {
                     .max(1);
                 Some(View {
                     depth: DepthSnapshot::new(depth, f.intrinsics, step),
-                    cam_to_ned: DMat3::from_quat(pose.q)
-                        * DMat3::from_rotation_y(self.params.camera_mount_pitch_rad),
+                    cam_to_ned,
                     pos_ned_m: pose.pos_ned_m,
                 })
             }
@@ -214,6 +235,42 @@ impl Pipeline {
             record: Box::new(record),
         }
     }
+}
+
+/// Below this horizontal speed the direction of flight is noise: the
+/// configured scan axis holds.
+pub const FLIGHT_AXIS_SPEED_MIN_MPS: f64 = 0.5;
+
+/// The image axis nearest the direction of flight (image columns run along
+/// `Rows`' lines, image rows along `Columns`'), and the camera's tilt along
+/// it: the angle of the optical axis from the vertical in the vertical plane of
+/// that axis, positive towards the axis. Below
+/// [`FLIGHT_AXIS_SPEED_MIN_MPS`], `fixed` holds. Pure.
+pub fn flight_axis(cam_to_ned: &DMat3, vel_ned_mps: DVec3, fixed: TrackAxis) -> (TrackAxis, f64) {
+    let horizontal = |v: DVec3| DVec3::new(v.x, v.y, 0.0);
+    let v = horizontal(vel_ned_mps);
+    let axis = if !(v.length() >= FLIGHT_AXIS_SPEED_MIN_MPS) {
+        fixed
+    } else if horizontal(cam_to_ned.x_axis).dot(v).abs()
+        >= horizontal(cam_to_ned.y_axis).dot(v).abs()
+    {
+        TrackAxis::Rows
+    } else {
+        TrackAxis::Columns
+    };
+    let image_axis = match axis {
+        TrackAxis::Rows => cam_to_ned.x_axis,
+        TrackAxis::Columns => cam_to_ned.y_axis,
+    };
+    let a = horizontal(image_axis);
+    let z = cam_to_ned.z_axis;
+    let tilt = if a.length() < 1e-12 {
+        // The image axis is vertical: the camera looks along the horizon.
+        std::f64::consts::FRAC_PI_2
+    } else {
+        z.dot(a / a.length()).atan2(z.z)
+    };
+    (axis, tilt)
 }
 
 /// What a capture record is made of.

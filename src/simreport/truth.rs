@@ -4,8 +4,10 @@
 
 use super::{TrackSample, TruthPose};
 use crate::core::{DepthData, DepthImage, Estimator, EstimatorParams, Intrinsics};
+use crate::daemon::step::flight_axis;
 use crate::render::{render_depth, Camera};
 use crate::scene::Scene;
+use glam::{DMat3, DVec3};
 use rayon::prelude::*;
 
 /// Poses rendered at once: keeps the depth maps in memory bounded.
@@ -21,16 +23,42 @@ pub fn truth_estimates(
 ) -> Vec<TrackSample> {
     let mut estimator = Estimator::new(params.clone());
     let mut out = Vec::with_capacity(poses.len());
-    for chunk in poses.chunks(CHUNK) {
+    for (c, chunk) in poses.chunks(CHUNK).enumerate() {
         let depths: Vec<Vec<f32>> = chunk
             .par_iter()
             .map(|p| render_depth(scene, &camera(p, intrinsics)))
             .collect();
-        for (p, depth) in chunk.iter().zip(depths) {
-            out.push(sample(&mut estimator, p, intrinsics, depth));
+        for (i, (p, depth)) in chunk.iter().zip(depths).enumerate() {
+            // The daemon's scan axis and tilt, from the true attitude and the
+            // direction of flight between the neighbouring poses.
+            let k = c * CHUNK + i;
+            let (a, b) = (
+                &poses[k.saturating_sub(1)],
+                &poses[(k + 1).min(poses.len() - 1)],
+            );
+            let dt_s = b.mono_ns.saturating_sub(a.mono_ns) as f64 * 1e-9;
+            let vel = if dt_s > 0.0 {
+                DVec3::new(
+                    (b.north_m - a.north_m) / dt_s,
+                    (b.east_m - a.east_m) / dt_s,
+                    0.0,
+                )
+            } else {
+                DVec3::ZERO
+            };
+            let (axis, pitch_rad) = flight_axis(&cam_to_ned(&p.camera), vel, params.track_axis);
+            estimator.set_track_axis(axis);
+            out.push(sample(&mut estimator, p, intrinsics, depth, pitch_rad));
         }
     }
     out
+}
+
+/// The camera's rotation, OpenCV axes → NED (the renderer's ZYX angles).
+fn cam_to_ned(c: &Camera) -> DMat3 {
+    DMat3::from_rotation_z(c.yaw_rad)
+        * DMat3::from_rotation_y(c.pitch_rad)
+        * DMat3::from_rotation_x(c.roll_rad)
 }
 
 fn camera(p: &TruthPose, intrinsics: Intrinsics) -> Camera {
@@ -45,6 +73,7 @@ fn sample(
     p: &TruthPose,
     intrinsics: Intrinsics,
     depth_m: Vec<f32>,
+    pitch_rad: f64,
 ) -> TrackSample {
     // The image is built from the intrinsics' own size, so neither step can
     // fail; if one did, the sample says "no estimate" rather than panicking.
@@ -54,11 +83,7 @@ fn sample(
         DepthData::Metres(depth_m),
     )
     .ok()
-    .and_then(|img| {
-        estimator
-            .estimate(&img, &intrinsics, p.camera.pitch_rad)
-            .ok()
-    })
+    .and_then(|img| estimator.estimate(&img, &intrinsics, pitch_rad).ok())
     .map(|(e, _)| e);
     TrackSample {
         mono_ns: p.mono_ns,
