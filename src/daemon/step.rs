@@ -254,6 +254,8 @@ pub fn capture_record(r: &RecordInputs) -> CaptureRecord {
             }
             _ => None,
         },
+        requested_by: None,
+        image_missing: None,
     }
 }
 
