@@ -173,6 +173,8 @@ fn sim_config_text(a: &SimArgs, scene_path: &Path, flight_dir: &Path, scene: &Sc
         CaptureMode::Frame => "frame",
         CaptureMode::CameraCommand => "camera_command",
         CaptureMode::AutopilotDistance => "autopilot_distance",
+        // Not a mode one configures: the config refuses it by name.
+        CaptureMode::Command => "command",
     };
     let model = a.model.unwrap_or(Model::Occlusion).as_str();
     let pose = match a.pose {
