@@ -134,6 +134,9 @@ pub struct RunReport {
     pub captures_failed: u64,
     /// Telemetry frames the tlog's queue dropped (oldest first) while the writer was behind.
     pub tlog_frames_dropped: u64,
+    /// From the shutdown (or the end of the depth source) to everything logged, said and
+    /// stopped (monotonic ns).
+    pub shutdown_ns: u64,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -364,6 +367,7 @@ pub async fn run(
     // The shutdown, in order: stop taking work (sources, estimator, interval captures);
     // log the captures already decided; close the writer's queue so it flushes the tlog and
     // writes the exports; say every capture's CAMERA_IMAGE_CAPTURED; stop the link last.
+    let stop_began_ns = mono_ns();
     let _ = options.notifier.stopping();
     stage.advance(Stage::Stopping);
     let deadline = tokio::time::Instant::now() + Duration::from_millis(600);
@@ -427,6 +431,7 @@ pub async fn run(
     Ok(RunReport {
         flight_dir: options.flight_dir.clone(),
         tlog_frames_dropped: tlog.dropped(),
+        shutdown_ns: mono_ns().saturating_sub(stop_began_ns),
         ..report(co, est_report, &counters, &link, wreport)
     })
 }

@@ -119,8 +119,8 @@ pub fn writer_thread(
 ) -> WriterReport {
     let mut report = WriterReport::default();
     let mut tlog_failed = false;
-    // How long making an image took lately (frame + encoding + file), to skip one that
-    // cannot be made by its deadline instead of making every later capture late too.
+    // How long making an image takes (frame + encoding + file, the recent worst), to skip
+    // one that cannot be made by its deadline instead of making every later capture late.
     let mut image_ns: u64 = 0;
     let space = |store: &BoxedStore| {
         if let Some(free) = store.free_bytes() {
@@ -179,8 +179,8 @@ pub fn writer_thread(
         };
         let seq = record.seq;
         let mut image: Option<Vec<u8>> = None;
+        let started = mono_ns();
         if record.image.is_some() {
-            let started = mono_ns();
             let missing = if started + image_ns > deadline_ns {
                 Some("writer behind: no time to make the image before its deadline".to_string())
             } else {
@@ -205,10 +205,6 @@ pub fn writer_thread(
                     }
                 }
             };
-            let took = mono_ns().saturating_sub(started);
-            if image.is_some() {
-                image_ns = (image_ns + took) / 2;
-            }
             if let Some(why) = missing {
                 // Logged without its image rather than lost: the pose and the spacing that
                 // decided it are still worth having.
@@ -221,6 +217,12 @@ pub fn writer_thread(
         let store = st.store_mut();
         let r = log_capture(store, &record, image.as_deref());
         space(store);
+        if image.is_some() && r.is_ok() {
+            // A decaying maximum of frame, encoding and file: one fast image must not talk
+            // the writer into a slow one it has no time for.
+            let took = mono_ns().saturating_sub(started);
+            image_ns = took.max(image_ns - image_ns / 8);
+        }
         let result = r.map_err(|e| {
             let error = format!("capture {seq} not logged: {e}");
             report.error(error.clone());
