@@ -100,6 +100,7 @@ async fn a_slow_store_under_a_high_capture_rate_loses_nothing_and_answers_in_tim
                 });
             })
         }),
+        on_config: None,
     };
     let out = run_sim_with(args, hooks, async move { enough.notified().await })
         .await

@@ -612,9 +612,8 @@ impl Coordinator {
                 .is_none_or(|t| now.mono_ns >= t + TOO_FAST_EVERY_NS);
             if let (Some(v), true) = (fast, quiet) {
                 self.too_fast_said_ns = Some(now.mono_ns);
-                let text = format!(
-                    "alfd: {v:.1} m/s is too fast for {s:.2} m spacing: at most {vmax:.1} m/s"
-                );
+                // One STATUSTEXT chunk (50 bytes): ground stations show it whole.
+                let text = format!("alfd: too fast: {v:.1} m/s, max {vmax:.1} m/s at {s:.1} m");
                 self.status(&mut out, MavSeverity::MAV_SEVERITY_WARNING, &text);
             }
         }
