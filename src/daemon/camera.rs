@@ -95,9 +95,14 @@ impl StorageState {
         let available = available_bytes.min(total_bytes);
         let used_mib = ((total_bytes - available) as f64 / MIB) as f32;
         let available_mib = (available as f64 / MIB) as f32;
+        // Rounded to f32 apart, the parts could sum past the total (a GCS adds them in
+        // double precision): the total is raised to the next f32 that holds them.
+        let mut total_mib = (total_bytes as f64 / MIB) as f32;
+        while f64::from(used_mib) + f64::from(available_mib) > f64::from(total_mib) {
+            total_mib = f32::from_bits(total_mib.to_bits() + 1);
+        }
         StorageState {
-            // Rounded to f32 apart, the parts could sum past the total by an ulp.
-            total_mib: ((total_bytes as f64 / MIB) as f32).max(used_mib + available_mib),
+            total_mib,
             used_mib,
             available_mib,
             status: StorageStatus::STORAGE_STATUS_READY,
@@ -1215,12 +1220,16 @@ mod tests {
             (64u64 << 30, 16u64 << 30),
             (75_000_000_000, 75_000_000_000),
             (10, 20),
+            // Parts that, each rounded to f32, summed past an f32 total in double precision
+            // (MAVSDK read such a storage of this machine's disk).
+            (269_841_714_938, 35_630_780_113),
         ] {
             for s in [
                 StorageState::from_bytes(total, free),
                 StorageState::from_free_bytes(free),
             ] {
-                assert!(s.total_mib >= s.used_mib + s.available_mib, "{s:?}");
+                let parts = f64::from(s.used_mib) + f64::from(s.available_mib);
+                assert!(f64::from(s.total_mib) >= parts, "{s:?}");
                 assert!(s.total_mib > 0.0 && s.available_mib > 0.0, "{s:?}");
             }
         }

@@ -174,6 +174,11 @@ impl Coordinator {
         &self.camera
     }
 
+    /// Captures waiting for their pose ([`Action::Locate`] not yet answered).
+    pub fn locating(&self) -> usize {
+        self.locating.len()
+    }
+
     pub fn setter(&self) -> &DistanceSetter {
         &self.setter
     }

@@ -5,7 +5,7 @@
 //! the end of [`run`]. Every queue is bounded; each says its policy where it is made.
 
 use super::camera::StorageState;
-use super::coordinator::{Action, Coordinator, EstimatorView, Located, Now};
+use super::coordinator::{Action, Coordinator, EstimatorView, Located, Now, LOCATING_MAX};
 use super::estimator_task::{
     depth_thread, estimator_thread, Counters, Decided, EstimatorCtx, EstimatorReport, Ticks,
     DECIDED_QUEUE,
@@ -38,6 +38,8 @@ const IMAGE_BUDGET_NS: u64 = 400_000_000;
 /// Captures the coordinator holds while the writer's queue is full (about 1 KiB each);
 /// beyond, a capture is reported failed rather than held without bound.
 const WRITE_BACKLOG: usize = 1024;
+/// How long a capture waits for the telemetry sample after its instant.
+const LOCATE_WAIT: Duration = Duration::from_millis(300);
 
 /// Where colour frames come from.
 pub enum Frames {
@@ -314,8 +316,10 @@ pub async fn run(
     };
 
     let mut co = Coordinator::new(&config, last_seq, saves_frames.then_some(intrinsics));
+    let (located_tx, mut located_rx) = mpsc::channel(LOCATING_MAX);
     let mut out = Outbox {
         link: link.clone(),
+        located: located_tx,
         writer: Some(writer_tx),
         backlog: VecDeque::new(),
     };
@@ -351,6 +355,7 @@ pub async fn run(
             }
             Some(ev) = link_events.recv() => co.on_link_event(ev, now(&link).await),
             Some(w) = written_rx.recv() => written(&mut co, w),
+            Some((id, l)) = located_rx.recv() => co.on_located(id, l),
             Some(permit) = reserve(out.writer.as_ref()), if !out.backlog.is_empty() => {
                 if let Some(job) = out.backlog.pop_front() {
                     permit.send(job);
@@ -391,8 +396,9 @@ pub async fn run(
     .and_then(|r| r.ok())
     .unwrap_or_default();
     drop(frame_thread);
-    // Hand over the backlog while taking the writer's answers (it waits on them).
-    while !out.backlog.is_empty() {
+    // Hand over the backlog and the captures still waiting for their pose (each within
+    // LOCATE_WAIT), taking the writer's answers meanwhile (it waits on them).
+    while !out.backlog.is_empty() || co.locating() > 0 {
         let actions = tokio::select! {
             Some(permit) = reserve(out.writer.as_ref()) => {
                 if let Some(job) = out.backlog.pop_front() {
@@ -401,6 +407,7 @@ pub async fn run(
                 Vec::new()
             }
             Some(w) = written_rx.recv() => written(&mut co, w),
+            Some((id, l)) = located_rx.recv(), if co.locating() > 0 => co.on_located(id, l),
             else => break,
         };
         out.perform(&mut co, actions).await;
@@ -478,6 +485,7 @@ fn report(
 /// that stands in for it while it is full (in order: a capture never overtakes another).
 struct Outbox {
     link: LinkHandle,
+    located: mpsc::Sender<(u64, Result<Located, String>)>,
     writer: Option<mpsc::Sender<WriteJob>>,
     backlog: VecDeque<WriteJob>,
 }
@@ -491,9 +499,15 @@ impl Outbox {
                 Action::Send(m) => {
                     let _ = self.link.send(*m).await;
                 }
+                // Not awaited here: the pose may be a telemetry period away.
                 Action::Locate { id, mono_ns } => {
-                    let l = locate(&self.link, mono_ns).await;
-                    todo.extend(co.on_located(id, l));
+                    let (link, tx) = (self.link.clone(), self.located.clone());
+                    tokio::spawn(async move {
+                        let l = locate(&link, mono_ns).await;
+                        // The coordinator bounds the captures it locates at once to the
+                        // channel's capacity: this never waits.
+                        let _ = tx.send((id, l)).await;
+                    });
                 }
                 Action::Write(record) => {
                     let job = WriteJob {
@@ -613,6 +627,15 @@ async fn sleep_until(t: Option<tokio::time::Instant>) {
 
 /// The pose, clocks and local frame of a capture the coordinator takes itself.
 async fn locate(link: &LinkHandle, mono_ns: u64) -> Result<Located, String> {
+    // A capture taken "now" waits for the telemetry sample after it (at most
+    // LOCATE_WAIT): its pose is then interpolated, not extrapolated past the horizon.
+    let mut state = link.state();
+    let after = |s: &Option<link::VehicleState>| {
+        s.as_ref()
+            .and_then(|s| s.mono_ns)
+            .is_some_and(|t| t >= mono_ns)
+    };
+    let _ = tokio::time::timeout(LOCATE_WAIT, state.wait_for(after)).await;
     let pose = link
         .pose_at_mono_ns(mono_ns)
         .await
