@@ -17,7 +17,7 @@ use crate::core::distset::{DistanceSetter, DistanceSetterParams};
 use crate::core::estimate::Terms;
 use crate::core::geo::LocalFrame;
 use crate::core::pose::Pose;
-use crate::core::trigger::{Capture, Trigger};
+use crate::core::trigger::{self, Capture, Trigger};
 use crate::core::{Estimate, Intrinsics};
 use crate::link::LinkEvent;
 use mavlink::dialects::ardupilotmega::*;
@@ -494,7 +494,7 @@ impl Coordinator {
                 let capture = Capture {
                     distance_since_last_m: distance,
                     spacing_m: spacing,
-                    undersampled: distance.is_some_and(|d| d > tightest * (1.0 + 1e-9)),
+                    undersampled: trigger::undersampled(distance, tightest),
                     rate_limited: false,
                     fallback: self.fallback,
                 };
@@ -973,6 +973,9 @@ mod tests {
             assert_eq!(r.image, None, "the autopilot's camera took it");
         }
         assert_eq!(records[2].distance_since_last_m, Some(2.5));
+        // No estimate: the fallback spacing (1 m) held, and 2.5 m outgrew it.
+        assert!(!records[0].undersampled && records[2].undersampled);
+        assert_eq!(records[2].spacing.chosen_m, 1.0);
         assert_eq!(co.report.autopilot_triggers, 3);
         assert_eq!(co.report.command_captures, 0);
         // A ground station's capture in the same mode is a command capture.
