@@ -1,15 +1,15 @@
 //! The daemon wired together, and only that: the link first (its handle goes to whoever
 //! needs it), then the writer thread ([`super::writer`]), the depth and estimator threads
 //! ([`super::estimator_task`]), and the coordinator's loop, which performs what the pure
-//! [`Coordinator`] decides. One shutdown ([`super::shutdown`]), its order written once at
+//! [`Coordinator`] decides through [`super::outbox`]. One shutdown ([`super::shutdown`]), its order written once at
 //! the end of [`run`]. Every queue is bounded; each says its policy where it is made.
 
-use super::camera::StorageState;
-use super::coordinator::{Action, Coordinator, EstimatorView, Located, Now, LOCATING_MAX};
+use super::coordinator::{Coordinator, EstimatorView, LOCATING_MAX};
 use super::estimator_task::{
     depth_thread, estimator_thread, Counters, Decided, EstimatorCtx, EstimatorReport, Ticks,
     DECIDED_QUEUE,
 };
+use super::outbox::{now, reserve, sleep_until, tick, written, Outbox};
 use super::shutdown::{self, Stage};
 use super::writer::{
     writer_thread, Space, TlogQueue, WriteJob, WriterCtx, WriterReport, Written, WRITE_QUEUE,
@@ -17,7 +17,6 @@ use super::writer::{
 };
 use crate::capture::{parse_manifest, CaptureRecord, CaptureStore, DirStore, ExportSummary};
 use crate::config::Config;
-use crate::core::geo::LocalFrame;
 use crate::core::Intrinsics;
 use crate::link::{self, mono_ns, LinkHandle, LinkHealth, TapFrame};
 use crate::notify::Notifier;
@@ -32,14 +31,6 @@ use tokio::sync::{mpsc, watch};
 
 /// CAMERA_IMAGE_CAPTURED follows its capture's instant within this (issue 14).
 pub const CAPTURED_WITHIN_NS: u64 = 500_000_000;
-/// Of which the image may take this much; the rest is for the manifest line, the answer
-/// and the link.
-const IMAGE_BUDGET_NS: u64 = 400_000_000;
-/// Captures the coordinator holds while the writer's queue is full (about 1 KiB each);
-/// beyond, a capture is reported failed rather than held without bound.
-const WRITE_BACKLOG: usize = 1024;
-/// How long a capture waits for the telemetry sample after its instant.
-const LOCATE_WAIT: Duration = Duration::from_millis(300);
 
 /// Where colour frames come from.
 pub enum Frames {
@@ -479,179 +470,6 @@ fn report(
         captures_failed: c.captures_failed,
         ..RunReport::default()
     }
-}
-
-/// Where the coordinator's actions go: the link, and the writer's queue with the backlog
-/// that stands in for it while it is full (in order: a capture never overtakes another).
-struct Outbox {
-    link: LinkHandle,
-    located: mpsc::Sender<(u64, Result<Located, String>)>,
-    writer: Option<mpsc::Sender<WriteJob>>,
-    backlog: VecDeque<WriteJob>,
-}
-
-impl Outbox {
-    /// Performs `actions` and whatever they lead to (a located capture is written at once).
-    async fn perform(&mut self, co: &mut Coordinator, actions: Vec<Action>) {
-        let mut todo = VecDeque::from(actions);
-        while let Some(a) = todo.pop_front() {
-            match a {
-                Action::Send(m) => {
-                    let _ = self.link.send(*m).await;
-                }
-                // Not awaited here: the pose may be a telemetry period away.
-                Action::Locate { id, mono_ns } => {
-                    let (link, tx) = (self.link.clone(), self.located.clone());
-                    tokio::spawn(async move {
-                        let l = locate(&link, mono_ns).await;
-                        // The coordinator bounds the captures it locates at once to the
-                        // channel's capacity: this never waits.
-                        let _ = tx.send((id, l)).await;
-                    });
-                }
-                Action::Write(record) => {
-                    let job = WriteJob {
-                        deadline_ns: record.mono_ns + IMAGE_BUDGET_NS,
-                        record,
-                    };
-                    if let Some(refused) = self.queue(job) {
-                        let error = format!(
-                            "capture {} not logged: the writer is {refused}",
-                            refused_seq(&refused)
-                        );
-                        let mut r = *refused.record;
-                        r.image = None;
-                        todo.extend(co.on_capture_written(&r, Err(error), None));
-                    }
-                }
-            }
-        }
-    }
-
-    /// Queues `job`, or hands it back with why it cannot be.
-    fn queue(&mut self, job: WriteJob) -> Option<Refused> {
-        let Some(tx) = self.writer.as_ref() else {
-            return Some(Refused {
-                record: job.record,
-                why: "gone",
-            });
-        };
-        if self.backlog.is_empty() {
-            match tx.try_send(job) {
-                Ok(()) => return None,
-                Err(mpsc::error::TrySendError::Closed(j)) => {
-                    return Some(Refused {
-                        record: j.record,
-                        why: "gone",
-                    })
-                }
-                Err(mpsc::error::TrySendError::Full(j)) => self.backlog.push_back(j),
-            }
-            return None;
-        }
-        if self.backlog.len() >= WRITE_BACKLOG {
-            return Some(Refused {
-                record: job.record,
-                why: "too far behind",
-            });
-        }
-        self.backlog.push_back(job);
-        None
-    }
-}
-
-struct Refused {
-    record: Box<CaptureRecord>,
-    why: &'static str,
-}
-
-impl std::fmt::Display for Refused {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.why)
-    }
-}
-
-fn refused_seq(r: &Refused) -> u64 {
-    r.record.seq
-}
-
-/// Room in the writer's queue (a capture from the backlog goes in).
-async fn reserve(tx: Option<&mpsc::Sender<WriteJob>>) -> Option<mpsc::Permit<'_, WriteJob>> {
-    tx?.reserve().await.ok()
-}
-
-fn written(co: &mut Coordinator, w: Written) -> Vec<Action> {
-    let missing = w.record.image_missing.clone();
-    co.on_capture_written(&w.record, w.result, missing.as_deref())
-}
-
-async fn now(link: &LinkHandle) -> Now {
-    let mono = mono_ns();
-    Now {
-        mono_ns: mono,
-        boot_ms: link
-            .boot_ns_at_mono_ns(mono)
-            .await
-            .map_or(0, |ns| (ns / 1_000_000) as u32),
-    }
-}
-
-async fn tick(
-    co: &mut Coordinator,
-    link: &LinkHandle,
-    space: &Space,
-    counters: &Counters,
-) -> Vec<Action> {
-    let free = space.free_bytes.load(Ordering::Relaxed);
-    let total = space.total_bytes.load(Ordering::Relaxed);
-    let storage = if total > 0 {
-        StorageState::from_bytes(total, free)
-    } else {
-        StorageState::from_free_bytes(free)
-    };
-    let speed = link
-        .state()
-        .borrow()
-        .as_ref()
-        .map(|s| s.vel_ned_mps[0].hypot(s.vel_ned_mps[1]));
-    let skipped = counters.skipped_busy.load(Ordering::Relaxed);
-    co.on_tick(now(link).await, storage, skipped, speed)
-}
-
-async fn sleep_until(t: Option<tokio::time::Instant>) {
-    match t {
-        Some(t) => tokio::time::sleep_until(t).await,
-        None => std::future::pending().await,
-    }
-}
-
-/// The pose, clocks and local frame of a capture the coordinator takes itself.
-async fn locate(link: &LinkHandle, mono_ns: u64) -> Result<Located, String> {
-    // A capture taken "now" waits for the telemetry sample after it (at most
-    // LOCATE_WAIT): its pose is then interpolated, not extrapolated past the horizon.
-    let mut state = link.state();
-    let after = |s: &Option<link::VehicleState>| {
-        s.as_ref()
-            .and_then(|s| s.mono_ns)
-            .is_some_and(|t| t >= mono_ns)
-    };
-    let _ = tokio::time::timeout(LOCATE_WAIT, state.wait_for(after)).await;
-    let pose = link
-        .pose_at_mono_ns(mono_ns)
-        .await
-        .map_err(|e| e.to_string())?;
-    let home = link
-        .state()
-        .borrow()
-        .as_ref()
-        .map(|s| s.home)
-        .ok_or("no position from the autopilot yet")?;
-    Ok(Located {
-        pose,
-        boot_us: link.boot_ns_at_mono_ns(mono_ns).await.map(|n| n / 1000),
-        unix_us: unix_us_at(mono_ns),
-        local: LocalFrame::new(home),
-    })
 }
 
 fn spawn_thread<T: Send + 'static>(
