@@ -26,7 +26,8 @@ fi
 
 # pymavlink: the ground-station side of tests/interop_pymavlink.rs (which CI must run).
 # pycolmap (CPU wheels from PyPI): scripts/colmap_judge.py, run by tests/colmap_judge.rs.
-for module in pymavlink pycolmap; do
+# mavsdk (the native binding, >= 4): scripts/mavsdk_camera.py, run by tests/mavsdk_camera.rs.
+for module in pymavlink pycolmap mavsdk; do
     if ! python3 -c "import $module" 2>/dev/null; then
         python3 -m pip install --quiet "$module" 2>/dev/null \
             || python3 -m pip install --quiet --break-system-packages "$module"

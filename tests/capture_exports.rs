@@ -64,6 +64,8 @@ fn record(seq: u64, lat: f64, lon: f64, alt: f64, yaw: f64, cam_pitch: f64) -> C
             cx_px: 16.0,
             cy_px: 12.0,
         }),
+        requested_by: None,
+        image_missing: None,
     }
 }
 

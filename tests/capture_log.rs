@@ -62,6 +62,8 @@ fn record(seq: u64, with_image: bool) -> CaptureRecord {
             cx_px: 32.0,
             cy_px: 24.0,
         }),
+        requested_by: None,
+        image_missing: None,
     }
 }
 

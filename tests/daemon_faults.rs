@@ -133,6 +133,7 @@ async fn fly(seed: u64, tweak: impl FnOnce(&mut SimArgs), store: Option<BoxedSto
                 });
             })
         }),
+        on_config: None,
     };
     let out = run_sim_with(a, hooks, std::future::pending())
         .await

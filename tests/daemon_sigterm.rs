@@ -153,9 +153,11 @@ dir = {captures:?}
         assert!(Instant::now() < deadline, "no captures within 60 s");
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
+    // Taken before the signal: the daemon now stops within milliseconds, and its STOPPING=1
+    // was seen stamped before an instant taken after kill() returned.
+    let term = Instant::now();
     // SAFETY: kill sends a signal to the child we started, by its id.
     unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGTERM) };
-    let term = Instant::now();
     let status = loop {
         if let Some(s) = child.try_wait().unwrap() {
             break s;

@@ -15,6 +15,9 @@ pub enum CaptureMode {
     CameraCommand,
     /// The autopilot's own distance trigger fired (CAMERA_TRIGGER feedback).
     AutopilotDistance,
+    /// A ground station (or other allowed system) asked for it: IMAGE_START_CAPTURE or
+    /// DO_DIGICAM_CONTROL; `requested_by` names the sender. Never a configured mode.
+    Command,
 }
 
 /// Where the camera was, geodetic (WGS-84) and local ENU around the home point.
@@ -240,6 +243,15 @@ pub struct CaptureRecord {
     pub pose_age_ms: f64,
     /// `None` when alfd does not know the camera (autopilot-triggered captures).
     pub intrinsics: Option<CameraIntrinsics>,
+    /// `[system_id, component_id]` of the sender of the command that asked for the capture
+    /// (`command` captures, and the autopilot's IMAGE_START_CAPTURE in `autopilot_distance`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub requested_by: Option<[u8; 2]>,
+    /// Why a capture that was to save a frame names no image (no frame in time, the
+    /// writer behind, encoding failed); the ground station got a failed
+    /// CAMERA_IMAGE_CAPTURED for it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub image_missing: Option<String>,
 }
 
 /// Image encodings of saved frames.
@@ -347,6 +359,8 @@ pub(crate) mod tests {
                 cx_px: 32.0,
                 cy_px: 24.0,
             }),
+            requested_by: None,
+            image_missing: None,
         }
     }
 

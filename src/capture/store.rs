@@ -54,6 +54,10 @@ pub trait CaptureStore {
     fn sync_telemetry(&mut self) -> Result<(), StoreError>;
     /// Bytes still available for the log, when known.
     fn free_bytes(&self) -> Option<u64>;
+    /// The size of the storage the log is on, when known (STORAGE_INFORMATION's total).
+    fn total_bytes(&self) -> Option<u64> {
+        None
+    }
     /// The manifest as stored (read back for the exports at the end of a run).
     fn manifest_bytes(&self) -> Result<Vec<u8>, StoreError>;
 }
@@ -79,6 +83,9 @@ macro_rules! forward_store {
             }
             fn free_bytes(&self) -> Option<u64> {
                 (**self).free_bytes()
+            }
+            fn total_bytes(&self) -> Option<u64> {
+                (**self).total_bytes()
             }
             fn manifest_bytes(&self) -> Result<Vec<u8>, StoreError> {
                 (**self).manifest_bytes()
@@ -323,6 +330,10 @@ impl CaptureStore for DirStore {
         let s = rustix::fs::statvfs(&self.dir).ok()?;
         Some(s.f_bavail.saturating_mul(s.f_frsize))
     }
+    fn total_bytes(&self) -> Option<u64> {
+        let s = rustix::fs::statvfs(&self.dir).ok()?;
+        Some(s.f_blocks.saturating_mul(s.f_frsize))
+    }
     fn manifest_bytes(&self) -> Result<Vec<u8>, StoreError> {
         let p = self.manifest_path();
         fs::read(&p).map_err(|e| io_error(&p, e))
@@ -443,6 +454,9 @@ impl<S: CaptureStore> CaptureStore for FillingStore<S> {
     fn free_bytes(&self) -> Option<u64> {
         let left = self.capacity - self.used;
         Some(self.inner.free_bytes().map_or(left, |f| f.min(left)))
+    }
+    fn total_bytes(&self) -> Option<u64> {
+        Some(self.capacity)
     }
     fn manifest_bytes(&self) -> Result<Vec<u8>, StoreError> {
         self.inner.manifest_bytes()

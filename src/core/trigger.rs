@@ -148,7 +148,7 @@ impl Trigger {
         let c = Capture {
             distance_since_last_m: travelled,
             spacing_m: spacing,
-            undersampled: travelled.is_some_and(|d| d > spacing * (1.0 + 1e-9)),
+            undersampled: undersampled(travelled, spacing),
             rate_limited: self.rate_limited,
             fallback: self.fallback,
         };
@@ -162,6 +162,13 @@ impl Trigger {
         self.fallback = o.spacing_m.is_none();
         c
     }
+}
+
+/// Whether an interval of `distance_since_last_m` (`None`: the first capture) outgrew the
+/// tightest spacing in force over it, with the relative tolerance of the odometer's rounding.
+/// The trigger's own rule, for captures another trigger fired (the autopilot's).
+pub fn undersampled(distance_since_last_m: Option<f64>, spacing_m: f64) -> bool {
+    distance_since_last_m.is_some_and(|d| d > spacing_m * (1.0 + 1e-9))
 }
 
 #[cfg(test)]

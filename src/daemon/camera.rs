@@ -1,7 +1,8 @@
 //! The MAVLink camera protocol (v2) as alfd answers it, pure: commands in, messages out, time
-//! passed in. Owns the image count (newest image index + 1) and a ring of the last
-//! CAMERA_IMAGE_CAPTURED messages a GCS may re-request. Every message built here is on the
-//! send allow-list (`crate::core::allowlist`).
+//! passed in. Owns the image count (newest image index + 1), a ring of the last
+//! CAMERA_IMAGE_CAPTURED messages a GCS may re-request, and the capture commands accepted
+//! but not yet taken by the coordinator (which schedules them). Every message built here is
+//! on the send allow-list (`crate::core::allowlist`).
 
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicU16, Ordering};
@@ -92,22 +93,26 @@ impl StorageState {
     pub fn from_bytes(total_bytes: u64, available_bytes: u64) -> Self {
         const MIB: f64 = 1024.0 * 1024.0;
         let available = available_bytes.min(total_bytes);
+        let used_mib = ((total_bytes - available) as f64 / MIB) as f32;
+        let available_mib = (available as f64 / MIB) as f32;
+        // Rounded to f32 apart, the parts could sum past the total (a GCS adds them in
+        // double precision): the total is raised to the next f32 that holds them.
+        let mut total_mib = (total_bytes as f64 / MIB) as f32;
+        while f64::from(used_mib) + f64::from(available_mib) > f64::from(total_mib) {
+            total_mib = f32::from_bits(total_mib.to_bits() + 1);
+        }
         StorageState {
-            total_mib: (total_bytes as f64 / MIB) as f32,
-            used_mib: ((total_bytes - available) as f64 / MIB) as f32,
-            available_mib: (available as f64 / MIB) as f32,
+            total_mib,
+            used_mib,
+            available_mib,
             status: StorageStatus::STORAGE_STATUS_READY,
         }
     }
 
-    /// A ready storage of which only the free space is known: total and used are sent as 0.
+    /// A ready storage of which only the free space is known: counted as its total too
+    /// (nothing known used), so total ≥ used + available still holds for the GCS.
     pub fn from_free_bytes(available_bytes: u64) -> Self {
-        StorageState {
-            total_mib: 0.0,
-            used_mib: 0.0,
-            available_mib: (available_bytes as f64 / (1024.0 * 1024.0)) as f32,
-            status: StorageStatus::STORAGE_STATUS_READY,
-        }
+        Self::from_bytes(available_bytes, available_bytes)
     }
 }
 
@@ -130,6 +135,27 @@ pub struct CaptureActivity {
     /// A nominal interval between captures (s), if there is one; alfd triggers on distance,
     /// so usually `None`.
     pub image_interval_s: Option<f32>,
+}
+
+/// A capture command accepted from an allowed system, for the coordinator to schedule
+/// (it owns time and the capture numbering; the protocol only validates and answers).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum CaptureCommand {
+    /// IMAGE_START_CAPTURE or DO_DIGICAM_CONTROL: `count` images (0: until stopped),
+    /// `interval_s` apart, the first at the next frame.
+    Start {
+        /// Requester's system and component ids.
+        from: (u8, u8),
+        /// 0 for a single capture.
+        interval_s: f32,
+        count: u32,
+        /// IMAGE_START_CAPTURE's param4 on a single capture, when the sender numbers them.
+        sequence: Option<u32>,
+        /// MAV_CMD_IMAGE_START_CAPTURE or MAV_CMD_DO_DIGICAM_CONTROL.
+        command: MavCmd,
+    },
+    /// IMAGE_STOP_CAPTURE: end the running interval capture.
+    Stop { from: (u8, u8) },
 }
 
 /// One capture as CAMERA_IMAGE_CAPTURED reports it; independent of alfd's capture record.
@@ -195,7 +221,16 @@ pub struct CameraProtocol {
     image_count: i32,
     /// The last [`CAPTURED_RING`] captures, oldest first.
     captured: VecDeque<CAMERA_IMAGE_CAPTURED_DATA>,
+    /// Capture commands accepted since the coordinator last took them (bounded: a sender
+    /// flooding commands faster than the coordinator drains is refused, see `on_command`).
+    commands: VecDeque<CaptureCommand>,
+    /// The last single-capture sequence number per requester: a retransmitted command
+    /// (same number, its ACK lost) is acknowledged again but not taken twice.
+    last_sequence: Option<((u8, u8), u32)>,
 }
+
+/// Capture commands kept for the coordinator; beyond, TEMPORARILY_REJECTED.
+pub const PENDING_COMMANDS: usize = 64;
 
 impl CameraProtocol {
     pub fn new(info: CameraInfo) -> Self {
@@ -205,7 +240,18 @@ impl CameraProtocol {
             activity: CaptureActivity::default(),
             image_count: 0,
             captured: VecDeque::with_capacity(CAPTURED_RING),
+            commands: VecDeque::new(),
+            last_sequence: None,
         }
+    }
+
+    /// The capture commands accepted since the last call, oldest first.
+    pub fn take_capture_commands(&mut self) -> Vec<CaptureCommand> {
+        self.commands.drain(..).collect()
+    }
+
+    pub fn activity(&self) -> CaptureActivity {
+        self.activity
     }
 
     pub fn info(&self) -> &CameraInfo {
@@ -238,12 +284,14 @@ impl CameraProtocol {
     /// (`crate::core::allowlist::may_obey`), never ignored, so its ground station says why.
     ///
     /// Requests (REQUEST_MESSAGE 259–263 and the legacy 521/522/525/527/2002) are served;
-    /// SET_CAMERA_MODE accepts image mode only. IMAGE_START/STOP_CAPTURE and STORAGE_FORMAT are
-    /// DENIED, not UNSUPPORTED: the camera does capture images (CAPTURE_IMAGE is advertised),
-    /// but alfd alone decides when, and never erases captures on request; UNSUPPORTED would
-    /// tell the GCS the camera cannot capture at all. Other commands: UNSUPPORTED. A command id
-    /// outside the dialect cannot be named in an ACK, so it gets nothing (the link cannot
-    /// decode such a COMMAND_LONG anyway).
+    /// SET_CAMERA_MODE accepts image mode only. IMAGE_START_CAPTURE (a single image, a count
+    /// or until stopped, at an interval), IMAGE_STOP_CAPTURE and DO_DIGICAM_CONTROL (shoot) are
+    /// captures: ACCEPTED and queued as [`CaptureCommand`]s for the coordinator, which takes
+    /// them at the next frame (the CAMERA_IMAGE_CAPTURED follows). Parameters the camera cannot
+    /// honour (an endless or multi-image capture without an interval, a non-integer count)
+    /// are DENIED. STORAGE_FORMAT is DENIED: alfd never erases captures on request. Other
+    /// commands: UNSUPPORTED. A command id outside the dialect cannot be named in an ACK, so it
+    /// gets nothing (the link cannot decode such a COMMAND_LONG anyway).
     pub fn on_command(
         &mut self,
         cmd: u32,
@@ -257,7 +305,10 @@ impl CameraProtocol {
             return Vec::new();
         };
         let (result, reply) = if may_obey(cmd, trust) {
-            self.answer(command, &params, time_boot_ms)
+            match self.capture_command(command, &params, (from_system, from_component)) {
+                Some(r) => (r, None),
+                None => self.answer(command, &params, time_boot_ms),
+            }
         } else {
             denied()
         };
@@ -272,6 +323,60 @@ impl CameraProtocol {
         }));
         out.extend(reply);
         out
+    }
+
+    /// The capture commands' answer (`None`: not a capture command), queueing what is accepted.
+    fn capture_command(
+        &mut self,
+        command: MavCmd,
+        p: &[f32; 7],
+        from: (u8, u8),
+    ) -> Option<MavResult> {
+        let start = |interval_s: f32, count: u32, sequence: Option<u32>| CaptureCommand::Start {
+            from,
+            interval_s,
+            count,
+            sequence,
+            command,
+        };
+        let queued = match command {
+            MavCmd::MAV_CMD_IMAGE_START_CAPTURE => {
+                // param2 interval (s), param3 total images (0: until stopped), param4 the
+                // sender's sequence number of a single capture (0: none).
+                let interval_s = if p[1].is_nan() { 0.0 } else { p[1] };
+                let Some(count) = as_index(p[2]) else {
+                    return Some(MavResult::MAV_RESULT_DENIED);
+                };
+                if !(interval_s.is_finite() && interval_s >= 0.0)
+                    || (count != 1 && interval_s == 0.0)
+                {
+                    return Some(MavResult::MAV_RESULT_DENIED);
+                }
+                let sequence = as_index(p[3]).filter(|s| *s > 0 && count == 1);
+                if let Some(seq) = sequence {
+                    if self.last_sequence == Some((from, seq)) {
+                        // A retransmission: the capture is already taken or queued.
+                        return Some(MavResult::MAV_RESULT_ACCEPTED);
+                    }
+                    self.last_sequence = Some((from, seq));
+                }
+                start(if count == 1 { 0.0 } else { interval_s }, count, sequence)
+            }
+            MavCmd::MAV_CMD_IMAGE_STOP_CAPTURE => CaptureCommand::Stop { from },
+            // param5 1: shoot; the rest (zoom, focus, session) alfd has no use for.
+            MavCmd::MAV_CMD_DO_DIGICAM_CONTROL => {
+                if p[4] != 1.0 {
+                    return Some(MavResult::MAV_RESULT_DENIED);
+                }
+                start(0.0, 1, None)
+            }
+            _ => return None,
+        };
+        if self.commands.len() >= PENDING_COMMANDS {
+            return Some(MavResult::MAV_RESULT_TEMPORARILY_REJECTED);
+        }
+        self.commands.push_back(queued);
+        Some(MavResult::MAV_RESULT_ACCEPTED)
     }
 
     // The legacy request commands are deprecated in the dialect, yet the protocol's migration
@@ -303,9 +408,7 @@ impl CameraProtocol {
                     denied()
                 }
             }
-            MAV_CMD_IMAGE_START_CAPTURE | MAV_CMD_IMAGE_STOP_CAPTURE | MAV_CMD_STORAGE_FORMAT => {
-                denied()
-            }
+            MAV_CMD_STORAGE_FORMAT => denied(),
             _ => (MavResult::MAV_RESULT_UNSUPPORTED, None),
         }
     }
@@ -495,17 +598,21 @@ impl CameraProtocol {
             (NAME_OCCLUSION, occlusion_degree),
         ]
         .into_iter()
-        .filter_map(|(name, v)| {
-            let value = v? as f32;
-            value.is_finite().then(|| {
-                MavMessage::NAMED_VALUE_FLOAT(NAMED_VALUE_FLOAT_DATA {
-                    time_boot_ms,
-                    value,
-                    name: name.into(),
-                })
+        .filter_map(|(name, v)| Self::named_value(name, v?, time_boot_ms))
+        .collect()
+    }
+
+    /// One NAMED_VALUE_FLOAT (`name` at most 10 bytes); `None` when `value` is not finite
+    /// as an f32.
+    pub fn named_value(name: &str, value: f64, time_boot_ms: u32) -> Option<MavMessage> {
+        let value = value as f32;
+        value.is_finite().then(|| {
+            MavMessage::NAMED_VALUE_FLOAT(NAMED_VALUE_FLOAT_DATA {
+                time_boot_ms,
+                value,
+                name: name.into(),
             })
         })
-        .collect()
     }
 }
 
@@ -975,12 +1082,22 @@ mod tests {
             let r = one(cmd(&mut p, 530, [0.0, mode, 0.0, 0.0, 0.0, 0.0, 0.0]));
             assert_eq!(r.1, MavResult::MAV_RESULT_DENIED);
         }
-        for c in [2000, 2001, 526] {
+        // Storage format never; a capture of no images, or endless without an interval, no.
+        for (c, params) in [
+            (526, [0.0; 7]),
+            (2000, [0.0; 7]),
+            (2000, [0.0, 0.0, 3.0, 0.0, 0.0, 0.0, 0.0]),
+            (2000, [0.0, 1.0, 2.5, 0.0, 0.0, 0.0, 0.0]),
+            (2000, [0.0, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0]),
+            (203, [0.0; 7]),
+        ] {
             assert_eq!(
-                one(cmd(&mut p, c, [0.0; 7])).1,
-                MavResult::MAV_RESULT_DENIED
+                one(cmd(&mut p, c, params)).1,
+                MavResult::MAV_RESULT_DENIED,
+                "{c} {params:?}"
             );
         }
+        assert!(p.take_capture_commands().is_empty());
         // Video, zoom, arming: not ours.
         for c in [2500, 531, 400] {
             assert_eq!(
@@ -998,6 +1115,127 @@ mod tests {
         assert!(cmd(&mut p, u32::MAX, [0.0; 7]).is_empty());
         // Nothing above changed the image count.
         assert_eq!(p.image_count(), 0);
+    }
+
+    #[test]
+    fn capture_commands_are_accepted_and_queued() {
+        use CaptureCommand::*;
+        let mut p = proto();
+        let acked = |out: Vec<MavMessage>| {
+            assert_eq!(out.len(), 1, "{out:?}");
+            wire(&out[0]);
+            ack(&out[0]).1
+        };
+        let start = MavCmd::MAV_CMD_IMAGE_START_CAPTURE;
+        // MAVSDK's take_photo: one image, its sequence number in param4.
+        let single = [0.0, 0.0, 1.0, 7.0, f32::NAN, f32::NAN, f32::NAN];
+        assert_eq!(
+            acked(cmd(&mut p, 2000, single)),
+            MavResult::MAV_RESULT_ACCEPTED
+        );
+        // Retransmitted (its ACK lost): acknowledged again, not taken twice.
+        assert_eq!(
+            acked(cmd(&mut p, 2000, single)),
+            MavResult::MAV_RESULT_ACCEPTED
+        );
+        // Five at 0.5 s; endless at 2 s; a stop; a digicam shot.
+        let five = [0.0, 0.5, 5.0, 0.0, 0.0, 0.0, 0.0];
+        assert_eq!(
+            acked(cmd(&mut p, 2000, five)),
+            MavResult::MAV_RESULT_ACCEPTED
+        );
+        let endless = [0.0, 2.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+        assert_eq!(
+            acked(cmd(&mut p, 2000, endless)),
+            MavResult::MAV_RESULT_ACCEPTED
+        );
+        assert_eq!(
+            acked(cmd(&mut p, 2001, [0.0; 7])),
+            MavResult::MAV_RESULT_ACCEPTED
+        );
+        let shoot = [0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0];
+        assert_eq!(
+            acked(cmd(&mut p, 203, shoot)),
+            MavResult::MAV_RESULT_ACCEPTED
+        );
+        assert_eq!(
+            p.take_capture_commands(),
+            [
+                Start {
+                    from: GCS,
+                    interval_s: 0.0,
+                    count: 1,
+                    sequence: Some(7),
+                    command: start
+                },
+                Start {
+                    from: GCS,
+                    interval_s: 0.5,
+                    count: 5,
+                    sequence: None,
+                    command: start
+                },
+                Start {
+                    from: GCS,
+                    interval_s: 2.0,
+                    count: 0,
+                    sequence: None,
+                    command: start
+                },
+                Stop { from: GCS },
+                Start {
+                    from: GCS,
+                    interval_s: 0.0,
+                    count: 1,
+                    sequence: None,
+                    command: MavCmd::MAV_CMD_DO_DIGICAM_CONTROL
+                },
+            ]
+        );
+        assert!(p.take_capture_commands().is_empty());
+        // The next sequence number is a new capture; a flood beyond the queue is refused.
+        let next = [0.0, 0.0, 1.0, 8.0, 0.0, 0.0, 0.0];
+        assert_eq!(
+            acked(cmd(&mut p, 2000, next)),
+            MavResult::MAV_RESULT_ACCEPTED
+        );
+        for _ in 1..PENDING_COMMANDS {
+            assert_eq!(
+                acked(cmd(&mut p, 203, shoot)),
+                MavResult::MAV_RESULT_ACCEPTED
+            );
+        }
+        assert_eq!(
+            acked(cmd(&mut p, 203, shoot)),
+            MavResult::MAV_RESULT_TEMPORARILY_REJECTED
+        );
+        assert_eq!(p.take_capture_commands().len(), PENDING_COMMANDS);
+        // The protocol counts images only when they are reported captured.
+        assert_eq!(p.image_count(), 0);
+    }
+
+    #[test]
+    fn storage_totals_are_consistent() {
+        for (total, free) in [
+            (64u64 << 30, 16u64 << 30),
+            (75_000_000_000, 75_000_000_000),
+            (10, 20),
+            // Parts that, each rounded to f32, summed past an f32 total in double precision
+            // (MAVSDK read such a storage of this machine's disk).
+            (269_841_714_938, 35_630_780_113),
+        ] {
+            for s in [
+                StorageState::from_bytes(total, free),
+                StorageState::from_free_bytes(free),
+            ] {
+                let parts = f64::from(s.used_mib) + f64::from(s.available_mib);
+                assert!(f64::from(s.total_mib) >= parts, "{s:?}");
+                assert!(s.total_mib > 0.0 && s.available_mib > 0.0, "{s:?}");
+            }
+        }
+        // What MAVSDK saw: 75 GB free, and a total of 0.
+        let s = StorageState::from_free_bytes(75_000_000_000);
+        assert!((s.total_mib - 71_525.57).abs() < 0.1, "{s:?}");
     }
 
     #[test]
@@ -1059,7 +1297,8 @@ mod tests {
                 assert_eq!(ac as u32, c);
                 if out.len() == 2 {
                     assert_eq!(r, MavResult::MAV_RESULT_ACCEPTED);
-                } else {
+                } else if c != 2001 {
+                    // Stopping is always accepted; nothing else is with such params.
                     assert_ne!(r, MavResult::MAV_RESULT_ACCEPTED, "{c}");
                 }
                 for m in &out {

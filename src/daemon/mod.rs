@@ -1,9 +1,15 @@
 //! The daemon: the tasks that feed the pipeline (link, sources, writer) and the
 //! pipeline itself. `step` is pure and owns the per-frame decision; `camera`
-//! is the pure MAVLink camera protocol; the tasks at the edges own the devices.
+//! is the pure MAVLink camera protocol; `coordinator` the pure state machine
+//! between them; the tasks at the edges own the devices; `run` wires them.
 
 pub mod camera;
+pub mod coordinator;
 pub mod devices;
+pub mod estimator_task;
+pub mod outbox;
 pub mod run;
+pub mod shutdown;
 pub mod sim;
 pub mod step;
+pub mod writer;

@@ -1,30 +1,36 @@
-//! The daemon wired together: the link task, one thread per source, the
-//! estimator thread running the pure [`Pipeline`], the coordinator (capture
-//! modes, the MAVLink camera protocol, STATUSTEXT, NAMED_VALUE_FLOAT, the
-//! systemd watchdog) and the writer thread (encoding, manifest, exports,
-//! `telemetry.tlog`). One shutdown path: stop the sources, drain, flush.
+//! The daemon wired together, and only that: the link first (its handle goes to whoever
+//! needs it), then the writer thread ([`super::writer`]), the depth and estimator threads
+//! ([`super::estimator_task`]), and the coordinator's loop, which performs what the pure
+//! [`Coordinator`] decides through [`super::outbox`]. One shutdown ([`super::shutdown`]), its order written once at
+//! the end of [`run`]. Every queue is bounded; each says its policy where it is made.
 
-use super::camera::{camera_q_ned, CameraInfo, CameraProtocol, Captured, StorageState};
-use super::step::{capture_record, FrameInput, Pipeline, RecordInputs, StepOutcome, StepParams};
-use crate::capture::{
-    encode_capture, log_capture, parse_manifest, write_exports, CaptureMode, CaptureRecord,
-    CaptureStore, DirStore, ExifGps, ExportSummary, ImageFormat, TlogWriter,
+use super::coordinator::{Coordinator, EstimatorView, LOCATING_MAX};
+use super::estimator_task::{
+    depth_thread, estimator_thread, Counters, Decided, EstimatorCtx, EstimatorReport, Ticks,
+    DECIDED_QUEUE,
 };
-use crate::config::{CameraCommand, Config};
-use crate::core::distset::{DistanceSetter, DistanceSetterParams};
-use crate::core::geo::LocalFrame;
-use crate::core::trigger::Capture;
-use crate::core::{DepthData, DepthImage, Estimate, Intrinsics};
-use crate::link::{self, mono_ns, LinkEvent, LinkHandle, LinkHealth, TapFrame};
+use super::outbox::{now, reserve, sleep_until, tick, written, Outbox};
+use super::shutdown::{self, Stage};
+use super::writer::{
+    writer_thread, Space, TlogQueue, WriteJob, WriterCtx, WriterReport, Written, WRITE_QUEUE,
+    WRITTEN_QUEUE,
+};
+use crate::capture::{parse_manifest, CaptureRecord, CaptureStore, DirStore, ExportSummary};
+use crate::config::Config;
+use crate::core::Intrinsics;
+use crate::link::{self, mono_ns, LinkHandle, LinkHealth, TapFrame};
 use crate::notify::Notifier;
 use crate::source::{DepthSource, FrameAt, FrameRing, FrameSource, SourceError, Stamped};
-use mavlink::dialects::ardupilotmega::*;
+use std::collections::VecDeque;
 use std::future::Future;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use tokio::sync::{mpsc, watch};
+
+/// CAMERA_IMAGE_CAPTURED follows its capture's instant within this (issue 14).
+pub const CAPTURED_WITHIN_NS: u64 = 500_000_000;
 
 /// Where colour frames come from.
 pub enum Frames {
@@ -114,6 +120,16 @@ pub struct RunReport {
     /// Capture errors beyond the first 1000 kept in `capture_errors`.
     pub capture_errors_dropped: u64,
     pub estimator_busy_ns: u64,
+    /// Captures ground stations commanded (each image of an interval capture counted).
+    pub command_captures: u64,
+    /// Captures logged without their image or not logged, each said by a failed
+    /// CAMERA_IMAGE_CAPTURED or a STATUSTEXT.
+    pub captures_failed: u64,
+    /// Telemetry frames the tlog's queue dropped (oldest first) while the writer was behind.
+    pub tlog_frames_dropped: u64,
+    /// From the shutdown (or the end of the depth source) to everything logged, said and
+    /// stopped (monotonic ns).
+    pub shutdown_ns: u64,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -128,43 +144,11 @@ pub enum RunError {
     Config(String),
 }
 
-enum EstOut {
-    Sample(FrameSample, StepOutcome),
-    SourceFailed(String),
-}
-
-enum WriterMsg {
-    Capture(Box<CaptureRecord>),
-    Tlog(TapFrame),
-    Finish,
-}
-
-enum WriterEvent {
-    Logged(Box<CaptureRecord>),
-    Failed {
-        record: Box<CaptureRecord>,
-        error: String,
-    },
-}
-
-/// Messages and errors kept in a run's report; beyond, only counted.
-const REPORT_KEEP: usize = 1000;
-
-#[derive(Default)]
-struct WriterReport {
-    records: Vec<CaptureRecord>,
-    errors: Vec<String>,
-    errors_dropped: u64,
-    frames_missing: u64,
-    tlog_frames: u64,
-    exports: Option<ExportSummary>,
-}
-
 /// Unix time (µs) of a monotonic instant. The offset between the two clocks
 /// is taken once (the tightest of a few paired readings): read afresh for
 /// every message, a thread paused between the two reads stamped telemetry
 /// out of order.
-fn unix_us_at(mono: u64) -> Option<u64> {
+pub(crate) fn unix_us_at(mono: u64) -> Option<u64> {
     static OFFSET_US: std::sync::OnceLock<Option<i128>> = std::sync::OnceLock::new();
     let offset = (*OFFSET_US.get_or_init(|| {
         (0..5)
@@ -188,310 +172,7 @@ pub fn next_flight_dir(root: &Path) -> PathBuf {
     (1..)
         .map(|n| root.join(format!("flight-{n:03}")))
         .find(|p| !p.exists())
-        .expect("an unbounded range has a free name")
-}
-
-/// A clock of opportunities when no depth camera exists (fixed spacing).
-struct Ticks {
-    period_ns: u64,
-    next_ns: u64,
-    seq: u64,
-    intrinsics: Intrinsics,
-}
-
-impl DepthSource for Ticks {
-    fn intrinsics(&self) -> Intrinsics {
-        self.intrinsics
-    }
-    fn next_depth(&mut self) -> Result<Option<Stamped<DepthImage>>, SourceError> {
-        let now = mono_ns();
-        if self.next_ns == 0 {
-            self.next_ns = now;
-        }
-        if self.next_ns > now {
-            std::thread::sleep(Duration::from_nanos(self.next_ns - now));
-        }
-        let t = self.next_ns;
-        self.next_ns += self.period_ns;
-        self.seq += 1;
-        let data = DepthImage::new(1, 1, DepthData::Metres(vec![f32::NAN]))
-            .map_err(|e| SourceError::Fatal(e.to_string()))?;
-        Ok(Some(Stamped {
-            mono_ns: t,
-            seq: self.seq,
-            data,
-        }))
-    }
-}
-
-fn depth_thread(
-    mut src: Box<dyn DepthSource>,
-    tx: std::sync::mpsc::SyncSender<Stamped<DepthImage>>,
-    fail: mpsc::UnboundedSender<EstOut>,
-    stop: Arc<AtomicBool>,
-    counters: Arc<Counters>,
-) {
-    let mut last_seq: Option<u64> = None;
-    while !stop.load(Ordering::Relaxed) {
-        match src.next_depth() {
-            Ok(Some(f)) => {
-                counters.depth_frames.fetch_add(1, Ordering::Relaxed);
-                // The source's own counter: a gap is a frame the camera (or the
-                // renderer standing in for it) never delivered.
-                if let Some(l) = last_seq {
-                    let gap = f.seq.saturating_sub(l + 1);
-                    counters.source_gaps.fetch_add(gap, Ordering::Relaxed);
-                }
-                last_seq = Some(f.seq);
-                match tx.try_send(f) {
-                    Ok(()) => {}
-                    Err(std::sync::mpsc::TrySendError::Full(_)) => {
-                        counters.skipped_busy.fetch_add(1, Ordering::Relaxed);
-                    }
-                    Err(std::sync::mpsc::TrySendError::Disconnected(_)) => return,
-                }
-            }
-            Ok(None) => return,
-            Err(SourceError::BadFrame { .. }) => {
-                counters.bad_frames.fetch_add(1, Ordering::Relaxed);
-            }
-            Err(SourceError::Lost(e)) => {
-                counters.bad_frames.fetch_add(1, Ordering::Relaxed);
-                tracing::warn!("depth source lost: {e}; retrying");
-                std::thread::sleep(Duration::from_millis(200));
-            }
-            Err(SourceError::Fatal(e)) => {
-                let _ = fail.send(EstOut::SourceFailed(e));
-                return;
-            }
-        }
-    }
-}
-
-#[derive(Default)]
-struct Counters {
-    depth_frames: AtomicU64,
-    source_gaps: AtomicU64,
-    skipped_busy: AtomicU64,
-    bad_frames: AtomicU64,
-}
-
-struct EstimatorCtx {
-    link: LinkHandle,
-    rt: tokio::runtime::Handle,
-    intrinsics: Intrinsics,
-    config: Config,
-    last_seq: u64,
-    stop: Arc<AtomicBool>,
-}
-
-fn estimator_thread(
-    ctx: EstimatorCtx,
-    rx: std::sync::mpsc::Receiver<Stamped<DepthImage>>,
-    out: mpsc::UnboundedSender<EstOut>,
-) {
-    let cfg = &ctx.config;
-    let params = StepParams {
-        camera_mount_pitch_rad: cfg.depth.mount_pitch_rad,
-        frame_period_s: 1.0 / cfg.depth.fps,
-        capture_mode: cfg.capture.mode,
-        image_format: (cfg.capture.mode == CaptureMode::Frame).then_some(cfg.capture.image_format),
-    };
-    let mut pipeline: Option<Pipeline> = None;
-    let state = ctx.link.state();
-    // Without a depth frame for this long the camera has stalled: the trigger
-    // still gets opportunities, at the fallback spacing, flagged; one per
-    // frame period while the stall lasts, the step the trigger assumes.
-    let stall = Duration::from_secs_f64((5.0 / cfg.depth.fps).max(0.15));
-    let period = Duration::from_secs_f64(1.0 / cfg.depth.fps);
-    let mut stalled = false;
-    loop {
-        let wait = if stalled { period } else { stall };
-        let frame = match rx.recv_timeout(wait) {
-            Ok(f) => {
-                stalled = false;
-                Some(f)
-            }
-            Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {
-                stalled = true;
-                None
-            }
-            Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => return,
-        };
-        if ctx.stop.load(Ordering::Relaxed) {
-            return;
-        }
-        let started = mono_ns();
-        if pipeline.is_none() {
-            if let Some(home) = state.borrow().as_ref().map(|s| s.home) {
-                let mut p = Pipeline::new(
-                    cfg.estimator.clone(),
-                    cfg.trigger,
-                    params,
-                    LocalFrame::new(home),
-                );
-                p.set_last_seq(ctx.last_seq);
-                pipeline = Some(p);
-            }
-        }
-        let t = frame.as_ref().map_or(started, |f| f.mono_ns);
-        let outcome = match pipeline.as_mut() {
-            None => StepOutcome::Suspended {
-                reason: "no position from the autopilot yet".into(),
-            },
-            Some(p) => {
-                let pose = ctx
-                    .rt
-                    .block_on(ctx.link.pose_at_mono_ns(t))
-                    .map_err(|e| e.to_string());
-                let boot_us = ctx
-                    .rt
-                    .block_on(ctx.link.boot_ns_at_mono_ns(t))
-                    .map(|ns| ns / 1000);
-                p.on_frame(FrameInput {
-                    mono_ns: t,
-                    depth: frame.as_ref().map(|f| &f.data),
-                    intrinsics: &ctx.intrinsics,
-                    pose,
-                    boot_us,
-                    unix_us: unix_us_at(t),
-                })
-            }
-        };
-        let pos = match &outcome {
-            StepOutcome::Capture { record, .. } => Some([
-                record.position.north_m,
-                record.position.east_m,
-                -record.position.up_m,
-            ]),
-            _ => None,
-        };
-        let est = match &outcome {
-            StepOutcome::Wait { estimate } | StepOutcome::Capture { estimate, .. } => {
-                Some(estimate.as_ref())
-            }
-            StepOutcome::Suspended { .. } => None,
-        };
-        let pos_ned_m = pos.or_else(|| {
-            est.is_some()
-                .then(|| ctx.rt.block_on(ctx.link.pose_at_mono_ns(t)).ok())
-                .flatten()
-                .map(|p| p.pos_ned_m.to_array())
-        });
-        let sample = FrameSample {
-            mono_ns: t,
-            pos_ned_m,
-            spacing_m: est.and_then(|e| e.spacing.chosen_m),
-            occlusion_degree: est.and_then(|e| e.occlusion).map(|o| o.degree),
-            suspended: est.is_none(),
-            captured: matches!(outcome, StepOutcome::Capture { .. }),
-            busy_ns: mono_ns().saturating_sub(started),
-        };
-        if out.send(EstOut::Sample(sample, outcome)).is_err() {
-            return;
-        }
-    }
-}
-
-fn writer_thread(
-    store: BoxedStore,
-    format: ImageFormat,
-    mut rx: mpsc::UnboundedReceiver<WriterMsg>,
-    mut frames: Option<Box<dyn FrameAt>>,
-    events: mpsc::UnboundedSender<WriterEvent>,
-    free_bytes: Arc<AtomicU64>,
-    make_model: (String, String),
-) -> WriterReport {
-    let mut report = WriterReport::default();
-    let mut tlog_failed = false;
-    // One store for the manifest and the tlog: the tlog writer owns it (it
-    // syncs the telemetry once a second) and gives it back at the end.
-    let mut st: TlogWriter<BoxedStore> = TlogWriter::new(store, 1_000_000);
-    while let Some(msg) = rx.blocking_recv() {
-        match msg {
-            WriterMsg::Finish => break,
-            WriterMsg::Tlog(f) => {
-                if tlog_failed {
-                    continue;
-                }
-                let unix = unix_us_at(f.mono_ns).unwrap_or(0);
-                match st.write(unix, &f.bytes) {
-                    Ok(()) => report.tlog_frames += 1,
-                    Err(e) => {
-                        tlog_failed = true;
-                        report.errors.push(format!("telemetry.tlog: {e}"));
-                    }
-                }
-            }
-            WriterMsg::Capture(mut record) => {
-                let seq = record.seq;
-                let mut image: Option<Vec<u8>> = None;
-                if record.image.is_some() {
-                    let frame = frames.as_mut().and_then(|f| f.frame_at(record.mono_ns));
-                    match frame {
-                        Some(fr) => {
-                            let gps = ExifGps::from_record(&record, &make_model.0, &make_model.1);
-                            match encode_capture(
-                                &fr.data.rgb,
-                                fr.data.width as u32,
-                                fr.data.height as u32,
-                                format,
-                                Some(&gps),
-                            ) {
-                                Ok((bytes, _)) => image = Some(bytes),
-                                Err(e) => {
-                                    report.errors.push(format!("capture {seq}: encoding: {e}"));
-                                }
-                            }
-                        }
-                        None => report.frames_missing += 1,
-                    }
-                    if image.is_none() {
-                        // Logged without its image rather than lost: the pose and
-                        // the spacing that decided it are still worth having.
-                        record.image = None;
-                        record.intrinsics = None;
-                    }
-                }
-                let store = st.store_mut();
-                let r = log_capture(store, &record, image.as_deref());
-                if let Some(free) = store.free_bytes() {
-                    free_bytes.store(free, Ordering::Relaxed);
-                }
-                let ev = match r {
-                    Ok(()) => WriterEvent::Logged(record),
-                    Err(e) => {
-                        let error = format!("capture {seq} not logged: {e}");
-                        if report.errors.len() < REPORT_KEEP {
-                            report.errors.push(error.clone());
-                        } else {
-                            report.errors_dropped += 1;
-                        }
-                        WriterEvent::Failed { record, error }
-                    }
-                };
-                let _ = events.send(ev);
-            }
-        }
-    }
-    if let Err(e) = st.sync() {
-        report.errors.push(format!("telemetry.tlog: {e}"));
-    }
-    let mut store = st.into_inner();
-    // The exports come from the manifest as stored: what a reconstruction
-    // tool will read, and no list of every record kept in memory meanwhile.
-    match store.manifest_bytes() {
-        Ok(bytes) => {
-            let m = parse_manifest(&bytes);
-            match write_exports(&mut store, &m.records) {
-                Ok(s) => report.exports = Some(s),
-                Err(e) => report.errors.push(format!("exports: {e}")),
-            }
-            report.records = m.records;
-        }
-        Err(e) => report.errors.push(format!("manifest: {e}")),
-    }
-    report
+        .expect("an endless range has a free name")
 }
 
 /// Runs the daemon until `shutdown` resolves or the depth source ends.
@@ -523,85 +204,71 @@ pub async fn run(
                 .unwrap_or(0)
         })
         .unwrap_or(0);
+    let (stage, stop) = shutdown::channel();
+    let rt = tokio::runtime::Handle::current();
 
-    let (mut link_task, link, mut link_events) = link::new(link_cfg.clone());
+    // The link first: everything else gets its handle.
+    let (mut link_task, link, mut link_events) = link::new(link_cfg);
     if let Some(f) = options.on_link.take() {
         f(&link);
     }
+    // The link's tap is bounded (its own policy); frames go on to the tlog's queue, which
+    // drops its oldest when the writer is behind.
     let (tap_tx, mut tap_rx) = mpsc::channel::<TapFrame>(4096);
     link_task.set_tap(tap_tx);
-    let (link_stop_tx, mut link_stop_rx) = watch::channel(false);
-    let link_join = tokio::spawn(link_task.run(async move {
-        let _ = link_stop_rx.wait_for(|s| *s).await;
-    }));
-
-    // Writer.
-    let (writer_tx, writer_rx) = mpsc::unbounded_channel();
-    let (wev_tx, mut wev_rx) = mpsc::unbounded_channel();
-    let free_bytes = Arc::new(AtomicU64::new(store.free_bytes().unwrap_or(0)));
-    let stop = Arc::new(AtomicBool::new(false));
-    let (frame_at, frame_thread): (Option<Box<dyn FrameAt>>, _) = match devices.frames {
-        None => (None, None),
-        Some(Frames::AtInstant(f)) => (Some(f), None),
-        Some(Frames::Stream(mut s)) => {
-            let tol = (2e9 / config.camera.fps) as u64;
-            let ring = FrameRing::new(8, tol);
-            let feed = ring.clone();
-            let stop = stop.clone();
-            let h = std::thread::Builder::new()
-                .name("alfd-camera".into())
-                .spawn(move || {
-                    while !stop.load(Ordering::Relaxed) {
-                        match s.next_frame() {
-                            Ok(Some(f)) => feed.push(f),
-                            Ok(None) => return,
-                            Err(SourceError::Fatal(e)) => {
-                                tracing::error!("camera: {e}");
-                                return;
-                            }
-                            Err(e) => tracing::warn!("camera: {e}"),
-                        }
-                    }
-                })
-                .expect("a thread starts");
-            (
-                Some(Box::new(WaitingRing(ring)) as Box<dyn FrameAt>),
-                Some(h),
-            )
-        }
+    let link_join = {
+        let mut stop = stop.clone();
+        tokio::spawn(link_task.run(async move { stop.reached(Stage::Done).await }))
     };
-    let quality_fmt = config.capture.image_format;
-    let make_model = (
-        "alfd".to_string(),
-        format!("{} {}", config.camera.width, config.camera.height),
-    );
-    let fb = free_bytes.clone();
-    let writer = std::thread::Builder::new()
-        .name("alfd-writer".into())
-        .spawn(move || {
-            writer_thread(
-                store,
-                quality_fmt,
-                writer_rx,
-                frame_at,
-                wev_tx,
-                fb,
-                make_model,
-            )
-        })
-        .expect("a thread starts");
+    let tlog = Arc::new(TlogQueue::default());
     let tap_forward = {
-        let writer_tx = writer_tx.clone();
+        let (tlog, mut stop) = (tlog.clone(), stop.clone());
         tokio::spawn(async move {
-            while let Some(f) = tap_rx.recv().await {
-                if writer_tx.send(WriterMsg::Tlog(f)).is_err() {
-                    return;
+            loop {
+                tokio::select! {
+                    f = tap_rx.recv() => match f {
+                        Some(f) => tlog.push(f),
+                        None => return,
+                    },
+                    _ = stop.reached(Stage::Done) => return,
                 }
             }
         })
     };
 
-    // Sources and the estimator.
+    // The colour frames, and the writer.
+    let (frame_at, frame_thread) = match devices.frames {
+        None => (None, None),
+        Some(Frames::AtInstant(f)) => (Some(f), None),
+        Some(Frames::Stream(s)) => {
+            let (ring, h) = stream_thread(s, (2e9 / config.camera.fps) as u64, stop.clone());
+            (Some(Box::new(ring) as Box<dyn FrameAt>), Some(h))
+        }
+    };
+    let saves_frames = frame_at.is_some();
+    let space = Arc::new(Space::default());
+    let (writer_tx, writer_rx) = mpsc::channel::<WriteJob>(WRITE_QUEUE);
+    let (written_tx, mut written_rx) = mpsc::channel::<Written>(WRITTEN_QUEUE);
+    let writer = {
+        let ctx = WriterCtx {
+            store,
+            format: config.capture.image_format,
+            frames: frame_at,
+            space: space.clone(),
+            make_model: (
+                "alfd".to_string(),
+                format!("{} {}", config.camera.width, config.camera.height),
+            ),
+            rt: rt.clone(),
+        };
+        let tlog = tlog.clone();
+        spawn_thread("alfd-writer", move || {
+            writer_thread(ctx, writer_rx, tlog, written_tx)
+        })
+    };
+
+    // The depth source and the estimator. Depth → estimator holds one frame (a frame
+    // arriving while the estimator is busy is skipped and counted).
     let counters = Arc::new(Counters::default());
     let depth: Box<dyn DepthSource> = match devices.depth {
         Some(d) => d,
@@ -615,59 +282,40 @@ pub async fn run(
     };
     let intrinsics = depth.intrinsics();
     let (depth_tx, depth_rx) = std::sync::mpsc::sync_channel(1);
-    let (est_tx, mut est_rx) = mpsc::unbounded_channel();
+    let (decided_tx, mut decided_rx) = mpsc::channel(DECIDED_QUEUE);
+    let (view_tx, mut view_rx) = watch::channel::<Option<EstimatorView>>(None);
     let depth_join = {
-        let fail = est_tx.clone();
-        let stop = stop.clone();
-        let counters = counters.clone();
-        std::thread::Builder::new()
-            .name("alfd-depth".into())
-            .spawn(move || depth_thread(depth, depth_tx, fail, stop, counters))
-            .expect("a thread starts")
+        let (fail, stop, counters) = (decided_tx.clone(), stop.clone(), counters.clone());
+        spawn_thread("alfd-depth", move || {
+            depth_thread(depth, depth_tx, fail, stop, counters)
+        })
     };
     let est_join = {
         let ctx = EstimatorCtx {
             link: link.clone(),
-            rt: tokio::runtime::Handle::current(),
+            rt: rt.clone(),
             intrinsics,
             config: config.clone(),
             last_seq,
-            stop: stop.clone(),
+            shutdown: stop.clone(),
+            keep_samples: options.keep_samples,
+            on_sample: options.on_sample.take(),
         };
-        std::thread::Builder::new()
-            .name("alfd-estimator".into())
-            .spawn(move || estimator_thread(ctx, depth_rx, est_tx))
-            .expect("a thread starts")
+        spawn_thread("alfd-estimator", move || {
+            estimator_thread(ctx, depth_rx, view_tx, decided_tx)
+        })
     };
 
-    let mut co = Coordinator {
+    let mut co = Coordinator::new(&config, last_seq, saves_frames.then_some(intrinsics));
+    let (located_tx, mut located_rx) = mpsc::channel(LOCATING_MAX);
+    let mut out = Outbox {
         link: link.clone(),
-        config: config.clone(),
-        camera: CameraProtocol::new(CameraInfo::for_alfd(
-            config.camera.width as u16,
-            config.camera.height as u16,
-        )),
-        setter: DistanceSetter::new(DistanceSetterParams::default()),
-        suspended: None,
-        fallback: false,
-        terms: None,
-        terms_said_ns: 0,
-        skipped_said: 0,
-        last_estimate: None,
-        tightest_since_trigger: None,
-        last_trigger_ne: None,
-        seq: last_seq,
-        report: RunReport {
-            flight_dir: options.flight_dir.clone(),
-            ..RunReport::default()
-        },
-        writer: writer_tx.clone(),
-        keep_samples: options.keep_samples,
-        free_bytes,
-        skipped_busy: counters.clone(),
+        located: located_tx,
+        writer: Some(writer_tx),
+        backlog: VecDeque::new(),
     };
-    co.status(MavSeverity::MAV_SEVERITY_INFO, &co.ready_text())
-        .await;
+    let ready = co.ready();
+    out.perform(&mut co, ready).await;
     let _ = options.notifier.ready();
     let pet = options
         .notifier
@@ -679,47 +327,87 @@ pub async fn run(
     tokio::pin!(shutdown);
     let mut source_error = None;
     loop {
-        tokio::select! {
+        let due = co.next_due_ns().map(|t| {
+            tokio::time::Instant::now() + Duration::from_nanos(t.saturating_sub(mono_ns()))
+        });
+        let actions = tokio::select! {
             _ = &mut shutdown => break,
-            o = est_rx.recv() => match o {
+            d = decided_rx.recv() => match d {
                 None => break,
-                Some(EstOut::SourceFailed(e)) => { source_error = Some(e); break; }
-                Some(EstOut::Sample(s, outcome)) => {
-                    if let Some(cb) = options.on_sample.as_mut() {
-                        cb(&s);
-                    }
-                    co.on_outcome(s, outcome).await;
-                }
+                Some(Decided::SourceFailed(e)) => { source_error = Some(e); break; }
+                Some(Decided::Capture(r)) => co.on_decided(*r),
             },
-            Some(ev) = link_events.recv() => co.on_link_event(ev).await,
-            Some(ev) = wev_rx.recv() => co.on_writer_event(ev).await,
-            _ = second.tick() => co.every_second().await,
-            _ = watchdog.tick() => { let _ = options.notifier.watchdog(); }
-        }
+            Ok(()) = view_rx.changed() => {
+                let v = view_rx.borrow_and_update().clone();
+                match v {
+                    Some(v) => co.on_estimate(v, now(&link).await),
+                    None => Vec::new(),
+                }
+            }
+            Some(ev) = link_events.recv() => co.on_link_event(ev, now(&link).await),
+            Some(w) = written_rx.recv() => written(&mut co, w),
+            Some((id, l)) = located_rx.recv() => co.on_located(id, l),
+            Some(permit) = reserve(out.writer.as_ref()), if !out.backlog.is_empty() => {
+                if let Some(job) = out.backlog.pop_front() {
+                    permit.send(job);
+                }
+                Vec::new()
+            }
+            _ = second.tick() => tick(&mut co, &link, &space, &counters).await,
+            _ = sleep_until(due), if due.is_some() => tick(&mut co, &link, &space, &counters).await,
+            _ = watchdog.tick() => { let _ = options.notifier.watchdog(); Vec::new() }
+        };
+        out.perform(&mut co, actions).await;
     }
 
-    // One way out: stop the sources, let the estimator finish its frame,
-    // drain the decisions already made, flush the writer, stop the link.
+    // The shutdown, in order: stop taking work (sources, estimator, interval captures);
+    // log the captures already decided; close the writer's queue so it flushes the tlog and
+    // writes the exports; say every capture's CAMERA_IMAGE_CAPTURED; stop the link last.
+    let stop_began_ns = mono_ns();
     let _ = options.notifier.stopping();
-    stop.store(true, Ordering::Relaxed);
+    stage.advance(Stage::Stopping);
     let deadline = tokio::time::Instant::now() + Duration::from_millis(600);
-    while let Ok(Some(o)) = tokio::time::timeout_at(deadline, est_rx.recv()).await {
-        if let EstOut::Sample(s, outcome) = o {
-            co.on_outcome(s, outcome).await;
+    while let Ok(Some(d)) = tokio::time::timeout_at(deadline, decided_rx.recv()).await {
+        if let Decided::Capture(r) = d {
+            let a = co.on_decided(*r);
+            out.perform(&mut co, a).await;
         }
     }
-    // Threads blocked in a device read are left behind rather than holding
-    // the exit past its budget; normally they end within a frame.
-    let _ = tokio::time::timeout(
+    // Threads blocked in a device read are left behind rather than holding the exit past
+    // its budget; normally they end within a frame.
+    let est_report = tokio::time::timeout(
         Duration::from_millis(400),
         tokio::task::spawn_blocking(move || {
             let _ = depth_join.join();
-            let _ = est_join.join();
+            est_join.join().unwrap_or_default()
         }),
     )
-    .await;
+    .await
+    .ok()
+    .and_then(|r| r.ok())
+    .unwrap_or_default();
     drop(frame_thread);
-    let _ = writer_tx.send(WriterMsg::Finish);
+    // Hand over the backlog and the captures still waiting for their pose (each within
+    // LOCATE_WAIT), taking the writer's answers meanwhile (it waits on them).
+    while !out.backlog.is_empty() || co.locating() > 0 {
+        let actions = tokio::select! {
+            Some(permit) = reserve(out.writer.as_ref()) => {
+                if let Some(job) = out.backlog.pop_front() {
+                    permit.send(job);
+                }
+                Vec::new()
+            }
+            Some(w) = written_rx.recv() => written(&mut co, w),
+            Some((id, l)) = located_rx.recv(), if co.locating() > 0 => co.on_located(id, l),
+            else => break,
+        };
+        out.perform(&mut co, actions).await;
+    }
+    out.writer = None;
+    while let Some(w) = written_rx.recv().await {
+        let a = written(&mut co, w);
+        out.perform(&mut co, a).await;
+    }
     let wreport = tokio::task::spawn_blocking(move || writer.join())
         .await
         .ok()
@@ -728,33 +416,94 @@ pub async fn run(
             errors: vec!["the writer thread did not finish".into()],
             ..WriterReport::default()
         });
-    while let Ok(ev) = wev_rx.try_recv() {
-        co.on_writer_event(ev).await;
-    }
-    tap_forward.abort();
-    let _ = link_stop_tx.send(true);
+    stage.advance(Stage::Done);
+    let _ = tap_forward.await;
     let link_result = tokio::time::timeout(Duration::from_secs(1), link_join).await;
-    let mut report = co.report;
-    report.link = link.health().borrow().clone();
-    report.depth_frames = counters.depth_frames.load(Ordering::Relaxed);
-    report.frames_skipped_busy = counters.skipped_busy.load(Ordering::Relaxed);
-    report.frames_bad = counters.bad_frames.load(Ordering::Relaxed);
-    report.frames_missed_by_source = counters.source_gaps.load(Ordering::Relaxed);
-    report.capture_errors.extend(wreport.errors);
-    report.capture_errors_dropped = wreport.errors_dropped;
-    report.frames_missing = wreport.frames_missing;
-    report.tlog_frames = wreport.tlog_frames;
-    report.exports = wreport.exports;
-    report.trigger_distances_sent = co.setter.sent;
-    report.trigger_distances_acked = co.setter.acked;
-    report.records = wreport.records;
+
     if let Ok(Ok(Err(e))) = link_result {
         return Err(e.into());
     }
     if let Some(e) = source_error {
         return Err(RunError::Source(e));
     }
-    Ok(report)
+    Ok(RunReport {
+        flight_dir: options.flight_dir.clone(),
+        tlog_frames_dropped: tlog.dropped(),
+        shutdown_ns: mono_ns().saturating_sub(stop_began_ns),
+        ..report(co, est_report, &counters, &link, wreport)
+    })
+}
+
+/// The run's counters from the parts that kept them.
+fn report(
+    co: Coordinator,
+    est: EstimatorReport,
+    counters: &Counters,
+    link: &LinkHandle,
+    w: WriterReport,
+) -> RunReport {
+    let c = co.report.clone();
+    RunReport {
+        records: w.records,
+        capture_errors: w.errors,
+        capture_errors_dropped: w.errors_dropped,
+        frames_missing: w.frames_missing,
+        tlog_frames: w.tlog_frames,
+        exports: w.exports,
+        samples: est.samples,
+        depth_frames: counters.depth_frames.load(Ordering::Relaxed),
+        frames_skipped_busy: counters.skipped_busy.load(Ordering::Relaxed),
+        frames_missed_by_source: counters.source_gaps.load(Ordering::Relaxed),
+        frames_bad: counters.bad_frames.load(Ordering::Relaxed),
+        frames_suspended: est.frames_suspended,
+        captures_decided: c.captures_decided,
+        camera_commands: c.camera_commands,
+        camera_command_failures: c.camera_command_failures,
+        trigger_distances_sent: co.setter().sent,
+        trigger_distances_acked: co.setter().acked,
+        autopilot_triggers: c.autopilot_triggers,
+        link: link.health().borrow().clone(),
+        statustexts: c.statustexts,
+        statustexts_dropped: c.statustexts_dropped,
+        estimator_busy_ns: est.busy_ns,
+        command_captures: c.command_captures,
+        captures_failed: c.captures_failed,
+        ..RunReport::default()
+    }
+}
+
+fn spawn_thread<T: Send + 'static>(
+    name: &str,
+    f: impl FnOnce() -> T + Send + 'static,
+) -> std::thread::JoinHandle<T> {
+    std::thread::Builder::new()
+        .name(name.into())
+        .spawn(f)
+        .expect("a thread starts")
+}
+
+/// A streaming camera's thread, feeding a ring of its last frames.
+fn stream_thread(
+    mut s: Box<dyn FrameSource>,
+    tolerance_ns: u64,
+    stop: shutdown::Shutdown,
+) -> (WaitingRing, std::thread::JoinHandle<()>) {
+    let ring = FrameRing::new(8, tolerance_ns);
+    let feed = ring.clone();
+    let h = spawn_thread("alfd-camera", move || {
+        while !stop.is_stopping() {
+            match s.next_frame() {
+                Ok(Some(f)) => feed.push(f),
+                Ok(None) => return,
+                Err(SourceError::Fatal(e)) => {
+                    tracing::error!("camera: {e}");
+                    return;
+                }
+                Err(e) => tracing::warn!("camera: {e}"),
+            }
+        }
+    });
+    (WaitingRing(ring), h)
 }
 
 /// A ring that waits briefly for the frame of an instant it has not seen yet
@@ -771,380 +520,4 @@ impl FrameAt for WaitingRing {
         }
         None
     }
-}
-
-struct Coordinator {
-    link: LinkHandle,
-    config: Config,
-    camera: CameraProtocol,
-    setter: DistanceSetter,
-    suspended: Option<String>,
-    fallback: bool,
-    /// The terms last announced, and when (announcements at most every 10 s).
-    terms: Option<crate::core::estimate::Terms>,
-    terms_said_ns: u64,
-    skipped_said: u64,
-    last_estimate: Option<Box<Estimate>>,
-    tightest_since_trigger: Option<f64>,
-    last_trigger_ne: Option<[f64; 2]>,
-    seq: u64,
-    report: RunReport,
-    writer: mpsc::UnboundedSender<WriterMsg>,
-    keep_samples: bool,
-    free_bytes: Arc<AtomicU64>,
-    skipped_busy: Arc<Counters>,
-}
-
-impl Coordinator {
-    fn ready_text(&self) -> String {
-        let c = &self.config;
-        let terms = match c.estimator.model {
-            crate::core::Model::Fixed => "fixed".to_string(),
-            m => format!("{} model", m.as_str()),
-        };
-        format!(
-            "alfd ready: {terms}, capture {}",
-            match c.capture.mode {
-                CaptureMode::Frame => "frames",
-                CaptureMode::CameraCommand => "by camera command",
-                CaptureMode::AutopilotDistance => "by autopilot distance",
-            }
-        )
-    }
-
-    async fn status(&mut self, severity: MavSeverity, text: &str) {
-        tracing::info!("{text}");
-        // A long flight must not grow memory with its messages: the first
-        // ones are kept for the report, the rest counted.
-        if self.report.statustexts.len() < REPORT_KEEP {
-            self.report.statustexts.push(text.to_string());
-        } else {
-            self.report.statustexts_dropped += 1;
-        }
-        for m in CameraProtocol::statustext(severity, text) {
-            let _ = self.link.send(m).await;
-        }
-    }
-
-    async fn on_outcome(&mut self, s: FrameSample, outcome: StepOutcome) {
-        self.report.estimator_busy_ns += s.busy_ns;
-        if self.keep_samples {
-            self.report.samples.push(s.clone());
-        }
-        match outcome {
-            StepOutcome::Suspended { reason } => {
-                self.report.frames_suspended += 1;
-                if self.suspended.as_deref() != Some(reason.as_str()) {
-                    if self.suspended.is_none() {
-                        let text = format!("alfd: triggers suspended: {reason}");
-                        self.status(MavSeverity::MAV_SEVERITY_WARNING, &text).await;
-                    }
-                    self.suspended = Some(reason);
-                }
-            }
-            StepOutcome::Wait { estimate } => {
-                self.resumed().await;
-                self.on_estimate(estimate, s.mono_ns).await;
-            }
-            StepOutcome::Capture { estimate, record } => {
-                self.resumed().await;
-                self.on_estimate(estimate, s.mono_ns).await;
-                self.on_capture(*record).await;
-            }
-        }
-    }
-
-    async fn resumed(&mut self) {
-        if self.suspended.take().is_some() {
-            self.status(MavSeverity::MAV_SEVERITY_NOTICE, "alfd: triggers resumed")
-                .await;
-        }
-    }
-
-    async fn on_estimate(&mut self, e: Box<Estimate>, mono: u64) {
-        let spacing = e
-            .spacing
-            .chosen_m
-            .unwrap_or(self.config.trigger.fallback_spacing_m);
-        let fallback = e.spacing.chosen_m.is_none();
-        if fallback != self.fallback {
-            self.fallback = fallback;
-            let text = match (&e.no_estimate, fallback) {
-                (Some(why), true) => format!(
-                    "alfd: no estimate ({why:?}), fallback spacing {:.1} m",
-                    self.config.trigger.fallback_spacing_m
-                ),
-                (_, true) => "alfd: no estimate, fallback spacing".to_string(),
-                (_, false) => "alfd: estimating again".to_string(),
-            };
-            self.status(MavSeverity::MAV_SEVERITY_NOTICE, &text).await;
-        }
-        // Which terms the estimate used: said when they change (a scene
-        // without occlusion boundaries drops the occlusion term), not more
-        // than every 10 s.
-        if e.is_ok() && self.terms != Some(e.terms) && mono >= self.terms_said_ns + 10_000_000_000 {
-            self.terms = Some(e.terms);
-            self.terms_said_ns = mono;
-            let bound = e.active_bound.map_or("config limit", |b| b.as_str());
-            let text = format!("alfd: terms {}; bound {bound}", e.terms.names().join(", "));
-            self.status(MavSeverity::MAV_SEVERITY_INFO, &text).await;
-        }
-        self.tightest_since_trigger = Some(
-            self.tightest_since_trigger
-                .map_or(spacing, |t| t.min(spacing)),
-        );
-        if self.config.capture.mode == CaptureMode::AutopilotDistance {
-            if let Some(d) = self.setter.update(mono as f64 * 1e-9, spacing) {
-                let msg = command(
-                    self.config.link.as_ref().map_or(1, |l| l.system_id),
-                    1,
-                    MavCmd::MAV_CMD_DO_SET_CAM_TRIGG_DIST,
-                    [d as f32, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0],
-                );
-                let _ = self.link.send(msg).await;
-            }
-        }
-        self.last_estimate = Some(e);
-    }
-
-    async fn on_capture(&mut self, record: CaptureRecord) {
-        self.report.captures_decided += 1;
-        match self.config.capture.mode {
-            CaptureMode::Frame => {}
-            CaptureMode::CameraCommand => {
-                let sys = self.config.link.as_ref().map_or(1, |l| l.system_id);
-                let msg = match self.config.capture.command {
-                    CameraCommand::ImageStartCapture => command(
-                        sys,
-                        0,
-                        MavCmd::MAV_CMD_IMAGE_START_CAPTURE,
-                        [0.0, 0.0, 1.0, record.seq as f32, 0.0, 0.0, 0.0],
-                    ),
-                    CameraCommand::DigicamControl => command(
-                        sys,
-                        0,
-                        MavCmd::MAV_CMD_DO_DIGICAM_CONTROL,
-                        [0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0],
-                    ),
-                };
-                self.report.camera_commands += 1;
-                if let Err(e) = self.link.send(msg).await {
-                    self.report.camera_command_failures += 1;
-                    let text = format!("alfd: camera command not sent: {e}");
-                    self.status(MavSeverity::MAV_SEVERITY_ERROR, &text).await;
-                }
-            }
-            // The autopilot takes the pictures; its CAMERA_TRIGGER feedback is logged.
-            CaptureMode::AutopilotDistance => return,
-        }
-        self.seq = record.seq;
-        let _ = self.writer.send(WriterMsg::Capture(Box::new(record)));
-    }
-
-    async fn on_link_event(&mut self, ev: LinkEvent) {
-        match ev {
-            LinkEvent::Command {
-                system_id,
-                component_id,
-                command,
-                params,
-                trust,
-            } => {
-                let boot_ms = self.boot_ms_now().await;
-                for m in
-                    self.camera
-                        .on_command(command, params, system_id, component_id, trust, boot_ms)
-                {
-                    let _ = self.link.send(m).await;
-                }
-            }
-            LinkEvent::CommandAck { command, result } => {
-                let accepted = result == MavResult::MAV_RESULT_ACCEPTED as u8;
-                if command == MavCmd::MAV_CMD_DO_SET_CAM_TRIGG_DIST as u32 {
-                    self.setter.on_ack(accepted);
-                } else if !accepted {
-                    self.report.camera_command_failures += 1;
-                    let text = format!("alfd: camera command {command} refused ({result})");
-                    self.status(MavSeverity::MAV_SEVERITY_WARNING, &text).await;
-                }
-            }
-            LinkEvent::CameraTrigger {
-                mono_ns: Some(t), ..
-            } if self.config.capture.mode == CaptureMode::AutopilotDistance => {
-                self.on_autopilot_trigger(t).await;
-            }
-            LinkEvent::CameraTrigger { mono_ns: None, .. }
-                if self.config.capture.mode == CaptureMode::AutopilotDistance =>
-            {
-                self.status(
-                    MavSeverity::MAV_SEVERITY_WARNING,
-                    "alfd: autopilot trigger before time sync: not logged",
-                )
-                .await;
-            }
-            LinkEvent::AutopilotRebooted => {
-                self.status(
-                    MavSeverity::MAV_SEVERITY_WARNING,
-                    "alfd: autopilot rebooted, resynchronising time",
-                )
-                .await;
-            }
-            LinkEvent::GpsGlitch { jump_m } => {
-                let text = format!("alfd: GPS glitch ({jump_m:.1} m jump), position held");
-                self.status(MavSeverity::MAV_SEVERITY_WARNING, &text).await;
-            }
-            _ => {}
-        }
-    }
-
-    async fn on_autopilot_trigger(&mut self, t: u64) {
-        self.report.autopilot_triggers += 1;
-        let pose = match self.link.pose_at_mono_ns(t).await {
-            Ok(p) => p,
-            Err(e) => {
-                let text = format!("alfd: autopilot trigger without a pose ({e}): not logged");
-                self.status(MavSeverity::MAV_SEVERITY_WARNING, &text).await;
-                return;
-            }
-        };
-        let Some(home) = self.link.state().borrow().as_ref().map(|s| s.home) else {
-            return;
-        };
-        let ne = [pose.pos_ned_m.x, pose.pos_ned_m.y];
-        let distance = self
-            .last_trigger_ne
-            .map(|l| (ne[0] - l[0]).hypot(ne[1] - l[1]));
-        self.last_trigger_ne = Some(ne);
-        let tightest = self
-            .tightest_since_trigger
-            .take()
-            .unwrap_or(self.config.trigger.fallback_spacing_m);
-        let spacing = self.setter.in_force_m().unwrap_or(tightest);
-        let capture = Capture {
-            distance_since_last_m: distance,
-            spacing_m: spacing.min(tightest),
-            undersampled: distance.is_some_and(|d| d > tightest * (1.0 + 1e-9)),
-            rate_limited: false,
-            fallback: self.fallback,
-        };
-        self.seq += 1;
-        let boot_us = self.link.boot_ns_at_mono_ns(t).await.map(|n| n / 1000);
-        let record = capture_record(&RecordInputs {
-            seq: self.seq,
-            mono_ns: t,
-            pose: &pose,
-            boot_us,
-            unix_us: unix_us_at(t),
-            local: &LocalFrame::new(home),
-            estimate: self.last_estimate.as_deref(),
-            closed_loop: None,
-            capture: &capture,
-            model: self.config.estimator.model.as_str(),
-            mode: CaptureMode::AutopilotDistance,
-            image_format: None,
-            intrinsics: None,
-            mount_pitch_rad: self.config.depth.mount_pitch_rad,
-        });
-        let _ = self.writer.send(WriterMsg::Capture(Box::new(record)));
-    }
-
-    async fn on_writer_event(&mut self, ev: WriterEvent) {
-        match ev {
-            WriterEvent::Logged(r) => self.image_captured(&r, true).await,
-            WriterEvent::Failed { record, error } => {
-                // The ground station hears of the failure too: no gap in its image indices.
-                self.image_captured(&record, false).await;
-                self.status(MavSeverity::MAV_SEVERITY_ERROR, &format!("alfd: {error}"))
-                    .await;
-            }
-        }
-    }
-
-    async fn image_captured(&mut self, r: &CaptureRecord, success: bool) {
-        {
-            {
-                let boot_ms = (r.time_boot_us / 1000) as u32;
-                let q = camera_quaternion(r);
-                let msg = self.camera.image_captured(&Captured {
-                    time_boot_ms: boot_ms,
-                    time_unix_us: r.time_unix_us,
-                    lat_deg: r.position.lat_deg,
-                    lon_deg: r.position.lon_deg,
-                    alt_m: r.position.alt_m,
-                    rel_alt_m: r.position.rel_alt_m,
-                    q_camera_ned: q,
-                    image_index: (r.seq as i32) - 1,
-                    file_name: r.image.clone(),
-                    success,
-                });
-                let _ = self.link.send(msg).await;
-            }
-        }
-    }
-
-    async fn every_second(&mut self) {
-        let boot_ms = self.boot_ms_now().await;
-        let (spacing, occ) = match &self.last_estimate {
-            Some(e) => (
-                Some(
-                    e.spacing
-                        .chosen_m
-                        .unwrap_or(self.config.trigger.fallback_spacing_m),
-                ),
-                e.occlusion.map(|o| o.degree),
-            ),
-            None => (None, None),
-        };
-        for m in CameraProtocol::named_values(spacing, occ, boot_ms) {
-            let _ = self.link.send(m).await;
-        }
-        let free = self.free_bytes.load(Ordering::Relaxed);
-        self.camera.set_storage(StorageState::from_free_bytes(free));
-        // The estimator runs on as many frames as its budget allows: say when
-        // it could not keep up.
-        let skipped = self.skipped_busy.skipped_busy.load(Ordering::Relaxed);
-        if skipped > self.skipped_said {
-            let text = format!(
-                "alfd: estimator behind, {} depth frames skipped",
-                skipped - self.skipped_said
-            );
-            self.skipped_said = skipped;
-            self.status(MavSeverity::MAV_SEVERITY_NOTICE, &text).await;
-        }
-    }
-
-    async fn boot_ms_now(&self) -> u32 {
-        self.link
-            .boot_ns_at_mono_ns(mono_ns())
-            .await
-            .map_or(0, |ns| (ns / 1_000_000) as u32)
-    }
-}
-
-fn command(target_system: u8, target_component: u8, cmd: MavCmd, p: [f32; 7]) -> MavMessage {
-    MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
-        target_system,
-        target_component,
-        command: cmd,
-        confirmation: 0,
-        param1: p[0],
-        param2: p[1],
-        param3: p[2],
-        param4: p[3],
-        param5: p[4],
-        param6: p[5],
-        param7: p[6],
-    })
-}
-
-/// The camera's orientation in NED (w, x, y, z) from a record's attitude.
-fn camera_quaternion(r: &CaptureRecord) -> [f32; 4] {
-    let a = &r.attitude;
-    camera_q_ned(
-        a.roll_deg.to_radians(),
-        a.pitch_deg.to_radians(),
-        a.yaw_deg.to_radians(),
-        a.camera_pitch_deg.to_radians(),
-    )
-    .unwrap_or([f32::NAN, 0.0, 0.0, 0.0])
 }

@@ -66,6 +66,9 @@ pub enum OutageKind {
     NoValidPixels,
 }
 
+/// An edit of the run's config.
+pub type ConfigEdit = Box<dyn FnOnce(&mut Config) + Send>;
+
 /// What a test may hand to a sim run besides its arguments.
 #[derive(Default)]
 pub struct SimHooks {
@@ -73,6 +76,8 @@ pub struct SimHooks {
     pub store: Option<super::run::BoxedStore>,
     /// Called once the simulator runs (e.g. to inject faults at run time).
     pub on_sim: Option<Box<dyn FnOnce(Arc<firmware_sim::SimHandle>) + Send>>,
+    /// Edits the daemon's config before it runs (e.g. a lower rate limit).
+    pub on_config: Option<ConfigEdit>,
 }
 
 /// A depth source that fails in the given windows.
@@ -173,6 +178,8 @@ fn sim_config_text(a: &SimArgs, scene_path: &Path, flight_dir: &Path, scene: &Sc
         CaptureMode::Frame => "frame",
         CaptureMode::CameraCommand => "camera_command",
         CaptureMode::AutopilotDistance => "autopilot_distance",
+        // Not a mode one configures: the config refuses it by name.
+        CaptureMode::Command => "command",
     };
     let model = a.model.unwrap_or(Model::Occlusion).as_str();
     let pose = match a.pose {
@@ -283,6 +290,9 @@ pub async fn run_sim_with(
     };
     if args.config.is_some() {
         config.capture.dir = flight_dir.clone();
+    }
+    if let Some(f) = hooks.on_config.take() {
+        f(&mut config);
     }
     let scene = match &config.sim_scene {
         Some(p) if args.config.is_some() => Scene::load(p).map_err(|e| setup(e.to_string()))?,

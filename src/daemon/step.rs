@@ -378,6 +378,8 @@ pub fn capture_record(r: &RecordInputs) -> CaptureRecord {
             }
             _ => None,
         },
+        requested_by: None,
+        image_missing: None,
     }
 }
 

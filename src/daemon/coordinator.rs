@@ -1,0 +1,1070 @@
+//! The daemon's decisions between the estimator, the link and the writer, as a pure state
+//! machine: events and the time in, [`Action`]s out. It numbers the manifest (every capture,
+//! whoever decided it, gets the next `seq`), schedules the captures ground stations command,
+//! keeps the autopilot-trigger bookkeeping and the camera's capture activity, and says what
+//! happens by STATUSTEXT. The loop in `run.rs` performs the actions.
+
+use std::collections::BTreeMap;
+
+use super::camera::{
+    camera_q_ned, CameraInfo, CameraProtocol, CaptureActivity, CaptureCommand, Captured,
+    StorageState,
+};
+use super::step::{capture_record, RecordInputs};
+use crate::capture::{image_file_name, CaptureMode, CaptureRecord, ImageFormat};
+use crate::config::{CameraCommand, Config};
+use crate::core::distset::{DistanceSetter, DistanceSetterParams};
+use crate::core::estimate::Terms;
+use crate::core::geo::LocalFrame;
+use crate::core::pose::Pose;
+use crate::core::trigger::{self, Capture, Trigger};
+use crate::core::{Estimate, Intrinsics};
+use crate::link::LinkEvent;
+use mavlink::dialects::ardupilotmega::*;
+
+/// Messages and errors kept in the report; beyond, only counted.
+pub const REPORT_KEEP: usize = 1000;
+/// Captures waiting for their pose (a command burst, an autopilot trigger storm); beyond,
+/// a capture is reported failed at once rather than queued without bound.
+pub const LOCATING_MAX: usize = 256;
+/// NAMED_VALUE_FLOAT of the fastest ground speed the rate limit allows at the spacing (m/s).
+pub const NAME_VMAX: &str = "ALF_VMAX";
+const SECOND_NS: u64 = 1_000_000_000;
+/// At most one "too fast" STATUSTEXT in this long.
+const TOO_FAST_EVERY_NS: u64 = 10_000_000_000;
+
+/// What the daemon's clocks say now.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Now {
+    pub mono_ns: u64,
+    /// The autopilot's boot clock, 0 while time is not in sync.
+    pub boot_ms: u32,
+}
+
+/// The estimator's latest word (a latest-value: intermediate ones may be skipped).
+#[derive(Clone, Debug, PartialEq)]
+pub enum EstimatorView {
+    Suspended {
+        reason: String,
+    },
+    Estimate {
+        mono_ns: u64,
+        estimate: Box<Estimate>,
+    },
+}
+
+/// Where a capture the coordinator took itself was (from the link, by the loop).
+pub struct Located {
+    pub pose: Pose,
+    pub boot_us: Option<u64>,
+    pub unix_us: Option<u64>,
+    pub local: LocalFrame,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub enum Action {
+    Send(Box<MavMessage>),
+    /// Find the pose at `mono_ns`, then call [`Coordinator::on_located`] with `id`.
+    Locate {
+        id: u64,
+        mono_ns: u64,
+    },
+    /// Log this capture (image, manifest line); the writer answers with
+    /// [`Coordinator::on_capture_written`].
+    Write(Box<CaptureRecord>),
+}
+
+/// Who asked for a capture the coordinator takes itself.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Asked {
+    /// A ground station's command.
+    Command { from: (u8, u8) },
+    /// The autopilot's distance trigger: CAMERA_TRIGGER, or its IMAGE_START_CAPTURE
+    /// (ArduPilot's MAVLinkCamV2 backend sends one per trigger).
+    Autopilot { from: Option<(u8, u8)> },
+}
+
+/// An interval capture a ground station started.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Interval {
+    from: (u8, u8),
+    interval_ns: u64,
+    /// Images still to take; `None` until stopped.
+    remaining: Option<u32>,
+    next_ns: u64,
+}
+
+/// Counters the run's report takes over at the end.
+#[derive(Debug, Default, Clone)]
+pub struct CoordinatorReport {
+    pub captures_decided: u64,
+    pub command_captures: u64,
+    pub camera_commands: u64,
+    pub camera_command_failures: u64,
+    pub autopilot_triggers: u64,
+    /// Captures written without their image, or not written (with the reason).
+    pub captures_failed: u64,
+    pub statustexts: Vec<String>,
+    pub statustexts_dropped: u64,
+}
+
+pub struct Coordinator {
+    config: Config,
+    camera: CameraProtocol,
+    setter: DistanceSetter,
+    trigger: Trigger,
+    intrinsics: Option<Intrinsics>,
+    /// Whether alfd has a colour camera whose frames it saves.
+    saves_frames: bool,
+    suspended: Option<String>,
+    fallback: bool,
+    terms: Option<Terms>,
+    terms_said_ns: u64,
+    skipped_said: u64,
+    last_estimate: Option<Box<Estimate>>,
+    tightest_since_trigger: Option<f64>,
+    last_trigger_ne: Option<[f64; 2]>,
+    last_capture_ne: Option<[f64; 2]>,
+    seq: u64,
+    next_id: u64,
+    locating: BTreeMap<u64, (Asked, u64)>,
+    interval: Option<Interval>,
+    /// Captures handed to the writer and not yet answered (the camera is busy).
+    writing: usize,
+    last_second_ns: Option<u64>,
+    too_fast_said_ns: Option<u64>,
+    pub report: CoordinatorReport,
+}
+
+impl Coordinator {
+    /// `last_seq`: the flight's manifest so far (numbering continues after it);
+    /// `intrinsics`: of the saved frames, when alfd saves them.
+    pub fn new(config: &Config, last_seq: u64, intrinsics: Option<Intrinsics>) -> Self {
+        Coordinator {
+            camera: CameraProtocol::new(CameraInfo::for_alfd(
+                config.camera.width as u16,
+                config.camera.height as u16,
+            )),
+            setter: DistanceSetter::new(DistanceSetterParams::default()),
+            trigger: Trigger::new(config.trigger),
+            saves_frames: config.capture.mode == CaptureMode::Frame && intrinsics.is_some(),
+            intrinsics,
+            config: config.clone(),
+            suspended: None,
+            fallback: false,
+            terms: None,
+            terms_said_ns: 0,
+            skipped_said: 0,
+            last_estimate: None,
+            tightest_since_trigger: None,
+            last_trigger_ne: None,
+            last_capture_ne: None,
+            seq: last_seq,
+            next_id: 0,
+            locating: BTreeMap::new(),
+            interval: None,
+            writing: 0,
+            last_second_ns: None,
+            too_fast_said_ns: None,
+            report: CoordinatorReport::default(),
+        }
+    }
+
+    pub fn camera(&self) -> &CameraProtocol {
+        &self.camera
+    }
+
+    /// Captures waiting for their pose ([`Action::Locate`] not yet answered).
+    pub fn locating(&self) -> usize {
+        self.locating.len()
+    }
+
+    pub fn setter(&self) -> &DistanceSetter {
+        &self.setter
+    }
+
+    /// The first words: what alfd will do.
+    pub fn ready(&mut self) -> Vec<Action> {
+        let c = &self.config;
+        let terms = match c.estimator.model {
+            crate::core::Model::Fixed => "fixed".to_string(),
+            m => format!("{} model", m.as_str()),
+        };
+        let how = match c.capture.mode {
+            CaptureMode::Frame => "frames",
+            CaptureMode::CameraCommand => "by camera command",
+            CaptureMode::AutopilotDistance => "by autopilot distance",
+            CaptureMode::Command => "on command",
+        };
+        let text = format!("alfd ready: {terms}, capture {how}");
+        let mut out = Vec::new();
+        self.status(&mut out, MavSeverity::MAV_SEVERITY_INFO, &text);
+        out
+    }
+
+    /// When [`Coordinator::on_tick`] has something to do next (an interval capture).
+    pub fn next_due_ns(&self) -> Option<u64> {
+        self.interval.map(|i| i.next_ns)
+    }
+
+    pub fn on_estimate(&mut self, view: EstimatorView, now: Now) -> Vec<Action> {
+        let mut out = Vec::new();
+        match view {
+            EstimatorView::Suspended { reason } => {
+                if self.suspended.as_deref() != Some(reason.as_str()) {
+                    if self.suspended.is_none() {
+                        let text = format!("alfd: triggers suspended: {reason}");
+                        self.status(&mut out, MavSeverity::MAV_SEVERITY_WARNING, &text);
+                    }
+                    self.suspended = Some(reason);
+                }
+            }
+            EstimatorView::Estimate { mono_ns, estimate } => {
+                if self.suspended.take().is_some() {
+                    self.status(
+                        &mut out,
+                        MavSeverity::MAV_SEVERITY_NOTICE,
+                        "alfd: triggers resumed",
+                    );
+                }
+                let _ = now;
+                self.estimate(&mut out, estimate, mono_ns);
+            }
+        }
+        out
+    }
+
+    fn spacing_of(&self, e: &Estimate) -> f64 {
+        e.spacing
+            .chosen_m
+            .unwrap_or(self.config.trigger.fallback_spacing_m)
+    }
+
+    fn estimate(&mut self, out: &mut Vec<Action>, e: Box<Estimate>, mono: u64) {
+        let spacing = self.spacing_of(&e);
+        let fallback = e.spacing.chosen_m.is_none();
+        if fallback != self.fallback {
+            self.fallback = fallback;
+            let text = match (&e.no_estimate, fallback) {
+                (Some(why), true) => format!(
+                    "alfd: no estimate ({why:?}), fallback spacing {:.1} m",
+                    self.config.trigger.fallback_spacing_m
+                ),
+                (_, true) => "alfd: no estimate, fallback spacing".to_string(),
+                (_, false) => "alfd: estimating again".to_string(),
+            };
+            self.status(out, MavSeverity::MAV_SEVERITY_NOTICE, &text);
+        }
+        // Which terms the estimate used: said when they change (a scene without occlusion
+        // boundaries drops the occlusion term), not more than every 10 s.
+        if e.is_ok() && self.terms != Some(e.terms) && mono >= self.terms_said_ns + 10_000_000_000 {
+            self.terms = Some(e.terms);
+            self.terms_said_ns = mono;
+            let bound = e.active_bound.map_or("config limit", |b| b.as_str());
+            let text = format!("alfd: terms {}; bound {bound}", e.terms.names().join(", "));
+            self.status(out, MavSeverity::MAV_SEVERITY_INFO, &text);
+        }
+        self.tightest_since_trigger = Some(
+            self.tightest_since_trigger
+                .map_or(spacing, |t| t.min(spacing)),
+        );
+        if self.config.capture.mode == CaptureMode::AutopilotDistance {
+            if let Some(d) = self.setter.update(mono as f64 * 1e-9, spacing) {
+                out.push(send(command(
+                    self.target_system(),
+                    1,
+                    MavCmd::MAV_CMD_DO_SET_CAM_TRIGG_DIST,
+                    [d as f32, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0],
+                )));
+            }
+        }
+        self.last_estimate = Some(e);
+    }
+
+    fn target_system(&self) -> u8 {
+        self.config.link.as_ref().map_or(1, |l| l.system_id)
+    }
+
+    /// A capture the estimator's trigger decided (its `seq` is replaced by the manifest's).
+    pub fn on_decided(&mut self, mut record: CaptureRecord) -> Vec<Action> {
+        let mut out = Vec::new();
+        self.report.captures_decided += 1;
+        match self.config.capture.mode {
+            CaptureMode::Frame | CaptureMode::Command => {}
+            CaptureMode::CameraCommand => {
+                let seq = self.seq + 1;
+                let sys = self.target_system();
+                let msg = match self.config.capture.command {
+                    CameraCommand::ImageStartCapture => command(
+                        sys,
+                        0,
+                        MavCmd::MAV_CMD_IMAGE_START_CAPTURE,
+                        [0.0, 0.0, 1.0, seq as f32, 0.0, 0.0, 0.0],
+                    ),
+                    CameraCommand::DigicamControl => command(
+                        sys,
+                        0,
+                        MavCmd::MAV_CMD_DO_DIGICAM_CONTROL,
+                        [0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0],
+                    ),
+                };
+                self.report.camera_commands += 1;
+                out.push(send(msg));
+            }
+            // The autopilot takes the pictures; its triggers are logged.
+            CaptureMode::AutopilotDistance => return out,
+        }
+        self.number(&mut record);
+        self.write(&mut out, record);
+        out
+    }
+
+    /// The next manifest number, and the image name that goes with it.
+    fn number(&mut self, record: &mut CaptureRecord) {
+        self.seq += 1;
+        record.seq = self.seq;
+        if record.image.is_some() {
+            record.image = Some(image_file_name(self.seq, self.image_format()));
+        }
+    }
+
+    fn image_format(&self) -> ImageFormat {
+        self.config.capture.image_format
+    }
+
+    fn write(&mut self, out: &mut Vec<Action>, record: CaptureRecord) {
+        self.last_capture_ne = Some([record.position.north_m, record.position.east_m]);
+        self.writing += 1;
+        self.sync_activity();
+        out.push(Action::Write(Box::new(record)));
+    }
+
+    pub fn on_link_event(&mut self, ev: LinkEvent, now: Now) -> Vec<Action> {
+        let mut out = Vec::new();
+        match ev {
+            LinkEvent::Command {
+                system_id,
+                component_id,
+                command,
+                params,
+                trust,
+            } => {
+                for m in self.camera.on_command(
+                    command,
+                    params,
+                    system_id,
+                    component_id,
+                    trust,
+                    now.boot_ms,
+                ) {
+                    out.push(send(m));
+                }
+                for c in self.camera.take_capture_commands() {
+                    self.on_command(&mut out, c, now);
+                }
+            }
+            LinkEvent::CommandAck { command, result } => {
+                let accepted = result == MavResult::MAV_RESULT_ACCEPTED as u8;
+                if command == MavCmd::MAV_CMD_DO_SET_CAM_TRIGG_DIST as u32 {
+                    self.setter.on_ack(accepted);
+                } else if !accepted {
+                    self.report.camera_command_failures += 1;
+                    let text = format!("alfd: camera command {command} refused ({result})");
+                    self.status(&mut out, MavSeverity::MAV_SEVERITY_WARNING, &text);
+                }
+            }
+            LinkEvent::CameraTrigger {
+                mono_ns: Some(t), ..
+            } if self.config.capture.mode == CaptureMode::AutopilotDistance => {
+                self.locate(&mut out, Asked::Autopilot { from: None }, t);
+            }
+            LinkEvent::CameraTrigger { mono_ns: None, .. }
+                if self.config.capture.mode == CaptureMode::AutopilotDistance =>
+            {
+                self.status(
+                    &mut out,
+                    MavSeverity::MAV_SEVERITY_WARNING,
+                    "alfd: autopilot trigger before time sync: not logged",
+                );
+            }
+            LinkEvent::AutopilotRebooted => self.status(
+                &mut out,
+                MavSeverity::MAV_SEVERITY_WARNING,
+                "alfd: autopilot rebooted, resynchronising time",
+            ),
+            LinkEvent::GpsGlitch { jump_m } => {
+                let text = format!("alfd: GPS glitch ({jump_m:.1} m jump), position held");
+                self.status(&mut out, MavSeverity::MAV_SEVERITY_WARNING, &text);
+            }
+            _ => {}
+        }
+        out
+    }
+
+    /// A capture command the camera protocol accepted: taken now (the next frame), or
+    /// scheduled at its interval.
+    fn on_command(&mut self, out: &mut Vec<Action>, c: CaptureCommand, now: Now) {
+        match c {
+            CaptureCommand::Start {
+                from,
+                interval_s,
+                count,
+                command,
+                ..
+            } => {
+                let autopilot = self.config.capture.mode == CaptureMode::AutopilotDistance
+                    && command == MavCmd::MAV_CMD_IMAGE_START_CAPTURE
+                    && self.is_autopilot(from);
+                if autopilot {
+                    self.locate(out, Asked::Autopilot { from: Some(from) }, now.mono_ns);
+                    return;
+                }
+                self.report.command_captures += 1;
+                self.locate(out, Asked::Command { from }, now.mono_ns);
+                self.interval = (count != 1).then(|| Interval {
+                    from,
+                    interval_ns: (f64::from(interval_s) * 1e9) as u64,
+                    remaining: (count > 1).then(|| count - 1),
+                    next_ns: now.mono_ns + (f64::from(interval_s) * 1e9) as u64,
+                });
+            }
+            CaptureCommand::Stop { .. } => self.interval = None,
+        }
+        self.sync_activity();
+    }
+
+    fn is_autopilot(&self, from: (u8, u8)) -> bool {
+        self.config.link.as_ref().is_some_and(|l| {
+            l.accept_system_ids.first() == Some(&from.0) && l.autopilot_component_id == from.1
+        }) || from.1 == 1
+    }
+
+    fn locate(&mut self, out: &mut Vec<Action>, asked: Asked, mono_ns: u64) {
+        if self.locating.len() >= LOCATING_MAX {
+            self.report.captures_failed += 1;
+            let text = "alfd: capture refused, too many waiting for a pose";
+            self.status(out, MavSeverity::MAV_SEVERITY_ERROR, text);
+            return;
+        }
+        self.next_id += 1;
+        self.locating.insert(self.next_id, (asked, mono_ns));
+        self.sync_activity();
+        out.push(Action::Locate {
+            id: self.next_id,
+            mono_ns,
+        });
+    }
+
+    /// The pose of a capture asked by [`Action::Locate`]: its record goes to the writer, or
+    /// (no pose) the ground station hears of the failure.
+    pub fn on_located(&mut self, id: u64, located: Result<Located, String>) -> Vec<Action> {
+        let mut out = Vec::new();
+        let Some((asked, mono_ns)) = self.locating.remove(&id) else {
+            return out;
+        };
+        let l = match located {
+            Ok(l) => l,
+            Err(e) => {
+                let what = match asked {
+                    Asked::Autopilot { .. } => "autopilot trigger",
+                    Asked::Command { .. } => "commanded capture",
+                };
+                self.report.captures_failed += 1;
+                let text = format!("alfd: {what} without a pose ({e}): not logged");
+                // Said by STATUSTEXT, not by a failed CAMERA_IMAGE_CAPTURED: its index would
+                // be a manifest number no line carries (no pose is ever made up).
+                self.status(&mut out, MavSeverity::MAV_SEVERITY_WARNING, &text);
+                self.sync_activity();
+                return out;
+            }
+        };
+        let ne = [l.pose.pos_ned_m.x, l.pose.pos_ned_m.y];
+        let (capture, mode, requested_by, image_format) = match asked {
+            Asked::Autopilot { from } => {
+                self.report.autopilot_triggers += 1;
+                let distance = self
+                    .last_trigger_ne
+                    .map(|p| (ne[0] - p[0]).hypot(ne[1] - p[1]));
+                self.last_trigger_ne = Some(ne);
+                let tightest = self
+                    .tightest_since_trigger
+                    .take()
+                    .unwrap_or(self.config.trigger.fallback_spacing_m);
+                let spacing = self.setter.in_force_m().unwrap_or(tightest).min(tightest);
+                let capture = Capture {
+                    distance_since_last_m: distance,
+                    spacing_m: spacing,
+                    undersampled: trigger::undersampled(distance, tightest),
+                    rate_limited: false,
+                    fallback: self.fallback,
+                };
+                let by = from.map(|(s, c)| [s, c]);
+                (capture, CaptureMode::AutopilotDistance, by, None)
+            }
+            Asked::Command { from } => {
+                let spacing = self
+                    .last_estimate
+                    .as_deref()
+                    .map_or(self.config.trigger.fallback_spacing_m, |e| {
+                        self.spacing_of(e)
+                    });
+                let capture = Capture {
+                    distance_since_last_m: self
+                        .last_capture_ne
+                        .map(|p| (ne[0] - p[0]).hypot(ne[1] - p[1])),
+                    spacing_m: spacing,
+                    // Not the trigger's decision: the spacing is reported, not judged.
+                    undersampled: false,
+                    rate_limited: false,
+                    fallback: self.fallback,
+                };
+                let fmt = self.saves_frames.then_some(self.image_format());
+                (capture, CaptureMode::Command, Some([from.0, from.1]), fmt)
+            }
+        };
+        let mut record = capture_record(&RecordInputs {
+            seq: 0,
+            mono_ns,
+            pose: &l.pose,
+            boot_us: l.boot_us,
+            unix_us: l.unix_us,
+            local: &l.local,
+            estimate: self.last_estimate.as_deref(),
+            closed_loop: None,
+            capture: &capture,
+            model: self.config.estimator.model.as_str(),
+            mode,
+            image_format,
+            intrinsics: self.intrinsics.as_ref(),
+            mount_pitch_rad: self.config.depth.mount_pitch_rad,
+        });
+        record.requested_by = requested_by;
+        self.number(&mut record);
+        self.write(&mut out, record);
+        out
+    }
+
+    /// The writer's answer for a capture: CAMERA_IMAGE_CAPTURED, a failure when the record
+    /// names no image though one was wanted (`missing` says why) or was not written.
+    pub fn on_capture_written(
+        &mut self,
+        record: &CaptureRecord,
+        result: Result<(), String>,
+        image_missing: Option<&str>,
+    ) -> Vec<Action> {
+        let mut out = Vec::new();
+        self.writing = self.writing.saturating_sub(1);
+        let success = result.is_ok() && image_missing.is_none();
+        if !success {
+            self.report.captures_failed += 1;
+        }
+        out.push(send(self.camera.image_captured(&captured(record, success))));
+        if let Err(e) = result {
+            self.status(
+                &mut out,
+                MavSeverity::MAV_SEVERITY_ERROR,
+                &format!("alfd: {e}"),
+            );
+        }
+        self.sync_activity();
+        out
+    }
+
+    /// Once a second and at [`Coordinator::next_due_ns`]: the interval captures due, the
+    /// named values, the storage, and whether the estimator kept up.
+    pub fn on_tick(
+        &mut self,
+        now: Now,
+        storage: StorageState,
+        frames_skipped_busy: u64,
+        ground_speed_mps: Option<f64>,
+    ) -> Vec<Action> {
+        let mut out = Vec::new();
+        while let Some(mut i) = self.interval.filter(|i| i.next_ns <= now.mono_ns) {
+            self.report.command_captures += 1;
+            self.locate(&mut out, Asked::Command { from: i.from }, now.mono_ns);
+            i.next_ns += i.interval_ns.max(1);
+            i.remaining = i.remaining.map(|r| r - 1);
+            // A late tick catches up with one capture, not a burst.
+            i.next_ns = i.next_ns.max(now.mono_ns + 1);
+            self.interval = (i.remaining != Some(0)).then_some(i);
+        }
+        self.sync_activity();
+        // Once a second; a tick of the loop's 1 s timer that comes a little early against
+        // the previous one (handled late) still counts.
+        if self
+            .last_second_ns
+            .is_some_and(|t| now.mono_ns < t + SECOND_NS * 9 / 10)
+        {
+            return out;
+        }
+        self.last_second_ns = Some(now.mono_ns);
+        self.camera.set_storage(storage);
+        let (spacing, occ) = match &self.last_estimate {
+            Some(e) => (Some(self.spacing_of(e)), e.occlusion.map(|o| o.degree)),
+            None => (None, None),
+        };
+        for m in CameraProtocol::named_values(spacing, occ, now.boot_ms) {
+            out.push(send(m));
+        }
+        if let Some(s) = spacing {
+            let vmax = self.trigger.speed_advice_mps(s);
+            if let Some(m) = CameraProtocol::named_value(NAME_VMAX, vmax, now.boot_ms) {
+                out.push(send(m));
+            }
+            let fast = ground_speed_mps.filter(|v| *v > vmax * (1.0 + 1e-6));
+            let quiet = self
+                .too_fast_said_ns
+                .is_none_or(|t| now.mono_ns >= t + TOO_FAST_EVERY_NS);
+            if let (Some(v), true) = (fast, quiet) {
+                self.too_fast_said_ns = Some(now.mono_ns);
+                // One STATUSTEXT chunk (50 bytes): ground stations show it whole.
+                let text = format!("alfd: too fast: {v:.1} m/s, max {vmax:.1} m/s at {s:.1} m");
+                self.status(&mut out, MavSeverity::MAV_SEVERITY_WARNING, &text);
+            }
+        }
+        // The estimator runs on as many frames as its budget allows: say when it could not
+        // keep up.
+        if frames_skipped_busy > self.skipped_said {
+            let text = format!(
+                "alfd: estimator behind, {} depth frames skipped",
+                frames_skipped_busy - self.skipped_said
+            );
+            self.skipped_said = frames_skipped_busy;
+            self.status(&mut out, MavSeverity::MAV_SEVERITY_NOTICE, &text);
+        }
+        out
+    }
+
+    /// CAMERA_CAPTURE_STATUS from what is under way: capturing while a capture waits for its
+    /// pose or its write, or an interval capture runs.
+    fn sync_activity(&mut self) {
+        self.camera.set_activity(CaptureActivity {
+            active: self.writing > 0 || !self.locating.is_empty() || self.interval.is_some(),
+            image_interval_s: self.interval.map(|i| (i.interval_ns as f64 * 1e-9) as f32),
+        });
+    }
+
+    fn status(&mut self, out: &mut Vec<Action>, severity: MavSeverity, text: &str) {
+        tracing::info!("{text}");
+        // A long flight must not grow memory with its messages: the first ones are kept
+        // for the report, the rest counted.
+        if self.report.statustexts.len() < REPORT_KEEP {
+            self.report.statustexts.push(text.to_string());
+        } else {
+            self.report.statustexts_dropped += 1;
+        }
+        out.extend(
+            CameraProtocol::statustext(severity, text)
+                .into_iter()
+                .map(send),
+        );
+    }
+}
+
+fn send(m: MavMessage) -> Action {
+    Action::Send(Box::new(m))
+}
+
+fn command(target_system: u8, target_component: u8, cmd: MavCmd, p: [f32; 7]) -> MavMessage {
+    MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
+        target_system,
+        target_component,
+        command: cmd,
+        confirmation: 0,
+        param1: p[0],
+        param2: p[1],
+        param3: p[2],
+        param4: p[3],
+        param5: p[4],
+        param6: p[5],
+        param7: p[6],
+    })
+}
+
+/// CAMERA_IMAGE_CAPTURED's view of a record: image index `seq - 1`, contiguous over the
+/// flight directory, failures included.
+fn captured(r: &CaptureRecord, success: bool) -> Captured {
+    let a = &r.attitude;
+    let q = camera_q_ned(
+        a.roll_deg.to_radians(),
+        a.pitch_deg.to_radians(),
+        a.yaw_deg.to_radians(),
+        a.camera_pitch_deg.to_radians(),
+    )
+    .unwrap_or([f32::NAN, 0.0, 0.0, 0.0]);
+    Captured {
+        time_boot_ms: (r.time_boot_us / 1000) as u32,
+        time_unix_us: r.time_unix_us,
+        lat_deg: r.position.lat_deg,
+        lon_deg: r.position.lon_deg,
+        alt_m: r.position.alt_m,
+        rel_alt_m: r.position.rel_alt_m,
+        q_camera_ned: q,
+        image_index: (r.seq as i32) - 1,
+        file_name: r.image.clone(),
+        success,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::core::allowlist::Trust;
+    use crate::core::geo::Geodetic;
+    use glam::{DQuat, DVec3};
+
+    const GCS: (u8, u8) = (245, 190);
+    const S: u64 = 1_000_000_000;
+
+    fn config(mode: &str) -> Config {
+        let text = format!(
+            "[mavlink]\naddress = \"udpin:127.0.0.1:1\"\nsystem_id = 1\ncomponent_id = 100\n\
+             accept_system_ids = [1, 245]\n[sim]\nscene = \"scenes/district.toml\"\n\
+             [camera]\nsource = \"synthetic\"\nwidth = 64\nheight = 48\nfps = 30.0\n\
+             [sampling]\nmodel = \"fixed\"\n[trigger]\nrate_max_hz = 4.0\nfallback_spacing_m = 1.0\n\
+             [capture]\ndir = \"/tmp/none\"\nmode = \"{mode}\"\nimage_format = \"png\"\n"
+        );
+        Config::from_text(&text, "test.toml").expect("a valid config")
+    }
+
+    fn coordinator(mode: &str, last_seq: u64) -> Coordinator {
+        let i = Intrinsics::from_hfov_deg(64, 48, 69.0, None).unwrap();
+        Coordinator::new(&config(mode), last_seq, Some(i))
+    }
+
+    fn now(t_ns: u64) -> Now {
+        Now {
+            mono_ns: t_ns,
+            boot_ms: (t_ns / 1_000_000) as u32,
+        }
+    }
+
+    fn command(c: MavCmd, params: [f32; 7], from: (u8, u8), trust: Trust) -> LinkEvent {
+        LinkEvent::Command {
+            system_id: from.0,
+            component_id: from.1,
+            command: c as u32,
+            params,
+            trust,
+        }
+    }
+
+    fn located(north_m: f64) -> Result<Located, String> {
+        Ok(Located {
+            pose: Pose {
+                time_ns: 0,
+                pos_ned_m: DVec3::new(north_m, 0.0, -40.0),
+                vel_ned_mps: DVec3::new(5.0, 0.0, 0.0),
+                q: DQuat::IDENTITY,
+                extrapolated_ns: 0,
+            },
+            boot_us: Some(1_000),
+            unix_us: None,
+            local: LocalFrame::new(Geodetic {
+                lat_deg: 47.0,
+                lon_deg: 8.0,
+                alt_m: 500.0,
+            }),
+        })
+    }
+
+    fn acks(a: &[Action]) -> Vec<MavResult> {
+        a.iter()
+            .filter_map(|a| match a {
+                Action::Send(m) => match m.as_ref() {
+                    MavMessage::COMMAND_ACK(k) => Some(k.result),
+                    _ => None,
+                },
+                _ => None,
+            })
+            .collect()
+    }
+
+    fn locates(a: &[Action]) -> Vec<(u64, u64)> {
+        a.iter()
+            .filter_map(|a| match a {
+                Action::Locate { id, mono_ns } => Some((*id, *mono_ns)),
+                _ => None,
+            })
+            .collect()
+    }
+
+    fn writes(a: &[Action]) -> Vec<CaptureRecord> {
+        a.iter()
+            .filter_map(|a| match a {
+                Action::Write(r) => Some((**r).clone()),
+                _ => None,
+            })
+            .collect()
+    }
+
+    fn captured(a: &[Action]) -> Vec<CAMERA_IMAGE_CAPTURED_DATA> {
+        a.iter()
+            .filter_map(|a| match a {
+                Action::Send(m) => match m.as_ref() {
+                    MavMessage::CAMERA_IMAGE_CAPTURED(c) => Some(c.clone()),
+                    _ => None,
+                },
+                _ => None,
+            })
+            .collect()
+    }
+
+    fn status(co: &Coordinator) -> CAMERA_CAPTURE_STATUS_DATA {
+        match co.camera().capture_status(0) {
+            MavMessage::CAMERA_CAPTURE_STATUS(s) => s,
+            other => panic!("{other:?}"),
+        }
+    }
+
+    fn texts(a: &[Action]) -> Vec<String> {
+        a.iter()
+            .filter_map(|a| match a {
+                Action::Send(m) => match m.as_ref() {
+                    MavMessage::STATUSTEXT(t) => Some(t.text.to_str().unwrap().to_owned()),
+                    _ => None,
+                },
+                _ => None,
+            })
+            .collect()
+    }
+
+    fn named(a: &[Action], name: &str) -> Vec<f32> {
+        a.iter()
+            .filter_map(|a| match a {
+                Action::Send(m) => match m.as_ref() {
+                    MavMessage::NAMED_VALUE_FLOAT(n) if n.name.to_str().unwrap() == name => {
+                        Some(n.value)
+                    }
+                    _ => None,
+                },
+                _ => None,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn take_photo_is_a_logged_capture_answered_with_its_image() {
+        let mut co = coordinator("frame", 4);
+        let single = [0.0, 0.0, 1.0, 1.0, f32::NAN, f32::NAN, f32::NAN];
+        let cmd = command(
+            MavCmd::MAV_CMD_IMAGE_START_CAPTURE,
+            single,
+            GCS,
+            Trust::Accepted,
+        );
+        let a = co.on_link_event(cmd, now(10 * S));
+        assert_eq!(acks(&a), [MavResult::MAV_RESULT_ACCEPTED]);
+        let l = locates(&a);
+        assert_eq!(l.len(), 1);
+        assert_eq!(l[0].1, 10 * S, "taken at the command's instant");
+        assert_eq!(status(&co).image_status, 1, "capturing while it waits");
+        let w = writes(&co.on_located(l[0].0, located(3.0)));
+        assert_eq!(w.len(), 1);
+        let r = &w[0];
+        assert_eq!(r.seq, 5, "numbering continues the flight's manifest");
+        assert_eq!(r.capture_mode, CaptureMode::Command);
+        assert_eq!(r.requested_by, Some([GCS.0, GCS.1]));
+        assert_eq!(r.image.as_deref(), Some("IMG_000005.png"));
+        assert_eq!(r.mono_ns, 10 * S);
+        assert!((r.position.north_m - 3.0).abs() < 1e-9);
+        let c = captured(&co.on_capture_written(r, Ok(()), None));
+        assert_eq!(c.len(), 1);
+        assert_eq!(
+            (c[0].image_index, c[0].capture_result),
+            (4, MavBool::MAV_BOOL_TRUE)
+        );
+        let st = status(&co);
+        assert_eq!((st.image_status, st.image_count), (0, 5));
+        // The same sequence number again (its ACK lost): accepted, not taken twice.
+        let cmd = command(
+            MavCmd::MAV_CMD_IMAGE_START_CAPTURE,
+            single,
+            GCS,
+            Trust::Accepted,
+        );
+        let a = co.on_link_event(cmd, now(11 * S));
+        assert_eq!(acks(&a), [MavResult::MAV_RESULT_ACCEPTED]);
+        assert!(locates(&a).is_empty());
+        assert_eq!(co.report.command_captures, 1);
+    }
+
+    #[test]
+    fn a_foreign_take_photo_is_denied_and_nothing_is_taken() {
+        let mut co = coordinator("frame", 0);
+        let single = [0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0];
+        let cmd = command(
+            MavCmd::MAV_CMD_IMAGE_START_CAPTURE,
+            single,
+            (77, 1),
+            Trust::Foreign,
+        );
+        let a = co.on_link_event(cmd, now(S));
+        assert_eq!(acks(&a), [MavResult::MAV_RESULT_DENIED]);
+        assert!(locates(&a).is_empty());
+    }
+
+    #[test]
+    fn an_interval_capture_runs_its_count_and_status_says_so() {
+        let mut co = coordinator("frame", 0);
+        let three = [0.0, 0.5, 3.0, 0.0, 0.0, 0.0, 0.0];
+        let cmd = command(
+            MavCmd::MAV_CMD_IMAGE_START_CAPTURE,
+            three,
+            GCS,
+            Trust::Accepted,
+        );
+        let mut taken = locates(&co.on_link_event(cmd, now(S)));
+        assert_eq!(co.next_due_ns(), Some(S + S / 2));
+        let st = status(&co);
+        assert_eq!((st.image_status, st.image_interval), (3, 0.5));
+        let storage = StorageState::from_free_bytes(1 << 30);
+        for t in [S + S / 4, S + S / 2, 2 * S, 2 * S + S / 2, 3 * S] {
+            taken.extend(locates(&co.on_tick(now(t), storage, 0, None)));
+        }
+        let at: Vec<u64> = taken.iter().map(|l| l.1).collect();
+        assert_eq!(at, [S, S + S / 2, 2 * S]);
+        assert_eq!(co.next_due_ns(), None);
+        // Until stopped, then stopped.
+        let endless = [0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+        let cmd = command(
+            MavCmd::MAV_CMD_IMAGE_START_CAPTURE,
+            endless,
+            GCS,
+            Trust::Accepted,
+        );
+        assert_eq!(locates(&co.on_link_event(cmd, now(10 * S))).len(), 1);
+        assert_eq!(locates(&co.on_tick(now(11 * S), storage, 0, None)).len(), 1);
+        let stop = command(
+            MavCmd::MAV_CMD_IMAGE_STOP_CAPTURE,
+            [0.0; 7],
+            GCS,
+            Trust::Accepted,
+        );
+        let a = co.on_link_event(stop, now(11 * S + 1));
+        assert_eq!(acks(&a), [MavResult::MAV_RESULT_ACCEPTED]);
+        assert!(locates(&co.on_tick(now(20 * S), storage, 0, None)).is_empty());
+        assert_eq!(co.report.command_captures, 5);
+    }
+
+    #[test]
+    fn the_autopilots_image_start_capture_is_its_distance_trigger() {
+        let mut co = coordinator("autopilot_distance", 0);
+        // ArduPilot's MAVLinkCamV2: one IMAGE_START_CAPTURE per distance trigger.
+        let one = [0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0];
+        let mut records = Vec::new();
+        for (k, north_m) in [0.0, 2.5, 5.0].into_iter().enumerate() {
+            let cmd = command(
+                MavCmd::MAV_CMD_IMAGE_START_CAPTURE,
+                one,
+                (1, 1),
+                Trust::Accepted,
+            );
+            let a = co.on_link_event(cmd, now((k as u64 + 1) * S));
+            assert_eq!(acks(&a), [MavResult::MAV_RESULT_ACCEPTED]);
+            let l = locates(&a);
+            records.extend(writes(&co.on_located(l[0].0, located(north_m))));
+        }
+        assert_eq!(records.len(), 3);
+        for (k, r) in records.iter().enumerate() {
+            assert_eq!(r.seq, k as u64 + 1);
+            assert_eq!(r.capture_mode, CaptureMode::AutopilotDistance);
+            assert_eq!(r.requested_by, Some([1, 1]));
+            assert_eq!(r.image, None, "the autopilot's camera took it");
+        }
+        assert_eq!(records[2].distance_since_last_m, Some(2.5));
+        // No estimate: the fallback spacing (1 m) held, and 2.5 m outgrew it.
+        assert!(!records[0].undersampled && records[2].undersampled);
+        assert_eq!(records[2].spacing.chosen_m, 1.0);
+        assert_eq!(co.report.autopilot_triggers, 3);
+        assert_eq!(co.report.command_captures, 0);
+        // A ground station's capture in the same mode is a command capture.
+        let cmd = command(
+            MavCmd::MAV_CMD_IMAGE_START_CAPTURE,
+            one,
+            GCS,
+            Trust::Accepted,
+        );
+        let l = locates(&co.on_link_event(cmd, now(9 * S)));
+        let r = writes(&co.on_located(l[0].0, located(9.0)));
+        assert_eq!(r[0].capture_mode, CaptureMode::Command);
+    }
+
+    #[test]
+    fn decisions_are_renumbered_after_command_captures() {
+        let mut co = coordinator("frame", 0);
+        let shoot = [0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0];
+        let cmd = command(
+            MavCmd::MAV_CMD_DO_DIGICAM_CONTROL,
+            shoot,
+            GCS,
+            Trust::Accepted,
+        );
+        let l = locates(&co.on_link_event(cmd, now(S)));
+        assert_eq!(writes(&co.on_located(l[0].0, located(0.0)))[0].seq, 1);
+        // The estimator numbered its own capture 1 too: the manifest's number wins.
+        let mut decided = crate::capture::record::tests::sample(1);
+        decided.image = Some(image_file_name(1, ImageFormat::Png));
+        let w = writes(&co.on_decided(decided));
+        assert_eq!(
+            (w[0].seq, w[0].image.as_deref()),
+            (2, Some("IMG_000002.png"))
+        );
+    }
+
+    #[test]
+    fn a_capture_without_its_image_is_a_failed_capture() {
+        let mut co = coordinator("frame", 0);
+        let shoot = [0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0];
+        let cmd = command(
+            MavCmd::MAV_CMD_DO_DIGICAM_CONTROL,
+            shoot,
+            GCS,
+            Trust::Accepted,
+        );
+        let l = locates(&co.on_link_event(cmd, now(S)));
+        let mut r = writes(&co.on_located(l[0].0, located(0.0))).remove(0);
+        r.image = None;
+        let c = captured(&co.on_capture_written(&r, Ok(()), Some("no colour frame")));
+        assert_eq!(
+            (c[0].image_index, c[0].capture_result),
+            (0, MavBool::MAV_BOOL_FALSE)
+        );
+        let c = captured(&co.on_capture_written(&r, Err("disk full".into()), None));
+        assert_eq!(c[0].capture_result, MavBool::MAV_BOOL_FALSE);
+        assert_eq!(co.report.captures_failed, 2);
+    }
+
+    #[test]
+    fn speed_advice_every_second_and_too_fast_at_most_every_ten() {
+        let mut co = coordinator("frame", 0);
+        let storage = StorageState::from_free_bytes(1 << 30);
+        // No estimate yet: no advice.
+        assert!(named(&co.on_tick(now(S), storage, 0, Some(9.0)), NAME_VMAX).is_empty());
+        let mut e = Estimate::without_depth(0.0);
+        e.spacing.chosen_m = Some(2.0);
+        co.on_estimate(
+            EstimatorView::Estimate {
+                mono_ns: 2 * S,
+                estimate: Box::new(e),
+            },
+            now(2 * S),
+        );
+        let mut said = 0;
+        for k in 0..25u64 {
+            let a = co.on_tick(now(3 * S + k * S), storage, 0, Some(9.0));
+            // 2 m at 4 captures/s: 8 m/s.
+            assert_eq!(named(&a, NAME_VMAX), [8.0], "{k}");
+            said += texts(&a).iter().filter(|t| t.contains("too fast")).count();
+        }
+        assert_eq!(said, 3, "at 3, 13 and 23 s");
+        // Slower than the advice: nothing said.
+        let a = co.on_tick(now(40 * S), storage, 0, Some(7.9));
+        assert!(texts(&a).iter().all(|t| !t.contains("too fast")));
+        // A tick within the second adds nothing.
+        assert!(co
+            .on_tick(now(40 * S + S / 2), storage, 0, Some(9.0))
+            .is_empty());
+    }
+}

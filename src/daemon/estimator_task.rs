@@ -1,0 +1,260 @@
+//! The depth thread (owns the depth source) and the estimator thread (runs the pure
+//! [`Pipeline`] on each frame at its pose). Queues: depth → estimator holds one frame (a
+//! frame arriving while the estimator is busy is skipped and counted); the estimator's view
+//! for the coordinator is a latest-value `watch`; its capture decisions go on a bounded
+//! queue the estimator waits on (a decided capture is never dropped).
+
+use super::coordinator::EstimatorView;
+use super::run::{unix_us_at, FrameSample, SampleHook};
+use super::shutdown::Shutdown;
+use super::step::{FrameInput, Pipeline, StepOutcome, StepParams};
+use crate::capture::{CaptureMode, CaptureRecord};
+use crate::config::Config;
+use crate::core::geo::LocalFrame;
+use crate::core::{DepthData, DepthImage, Intrinsics};
+use crate::link::{mono_ns, LinkHandle};
+use crate::source::{DepthSource, SourceError, Stamped};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+use tokio::sync::{mpsc, watch};
+
+/// Capture decisions waiting for the coordinator: at the rate limit (≤ 30/s) this is two
+/// seconds of captures; the estimator waits when it is full rather than drop one.
+pub const DECIDED_QUEUE: usize = 64;
+
+/// What the estimator hands the coordinator besides its latest view.
+pub enum Decided {
+    Capture(Box<CaptureRecord>),
+    SourceFailed(String),
+}
+
+#[derive(Default)]
+pub struct Counters {
+    pub depth_frames: AtomicU64,
+    pub source_gaps: AtomicU64,
+    pub skipped_busy: AtomicU64,
+    pub bad_frames: AtomicU64,
+}
+
+/// What the estimator thread kept, returned when it ends.
+#[derive(Default)]
+pub struct EstimatorReport {
+    pub samples: Vec<FrameSample>,
+    pub frames_suspended: u64,
+    pub busy_ns: u64,
+}
+
+/// A clock of opportunities when no depth camera exists (fixed spacing).
+pub struct Ticks {
+    pub period_ns: u64,
+    pub next_ns: u64,
+    pub seq: u64,
+    pub intrinsics: Intrinsics,
+}
+
+impl DepthSource for Ticks {
+    fn intrinsics(&self) -> Intrinsics {
+        self.intrinsics
+    }
+    fn next_depth(&mut self) -> Result<Option<Stamped<DepthImage>>, SourceError> {
+        let now = mono_ns();
+        if self.next_ns == 0 {
+            self.next_ns = now;
+        }
+        if self.next_ns > now {
+            std::thread::sleep(Duration::from_nanos(self.next_ns - now));
+        }
+        let t = self.next_ns;
+        self.next_ns += self.period_ns;
+        self.seq += 1;
+        let data = DepthImage::new(1, 1, DepthData::Metres(vec![f32::NAN]))
+            .map_err(|e| SourceError::Fatal(e.to_string()))?;
+        Ok(Some(Stamped {
+            mono_ns: t,
+            seq: self.seq,
+            data,
+        }))
+    }
+}
+
+pub fn depth_thread(
+    mut src: Box<dyn DepthSource>,
+    tx: std::sync::mpsc::SyncSender<Stamped<DepthImage>>,
+    fail: mpsc::Sender<Decided>,
+    shutdown: Shutdown,
+    counters: Arc<Counters>,
+) {
+    let mut last_seq: Option<u64> = None;
+    while !shutdown.is_stopping() {
+        match src.next_depth() {
+            Ok(Some(f)) => {
+                counters.depth_frames.fetch_add(1, Ordering::Relaxed);
+                // The source's own counter: a gap is a frame the camera (or the renderer
+                // standing in for it) never delivered.
+                if let Some(l) = last_seq {
+                    let gap = f.seq.saturating_sub(l + 1);
+                    counters.source_gaps.fetch_add(gap, Ordering::Relaxed);
+                }
+                last_seq = Some(f.seq);
+                match tx.try_send(f) {
+                    Ok(()) => {}
+                    Err(std::sync::mpsc::TrySendError::Full(_)) => {
+                        counters.skipped_busy.fetch_add(1, Ordering::Relaxed);
+                    }
+                    Err(std::sync::mpsc::TrySendError::Disconnected(_)) => return,
+                }
+            }
+            Ok(None) => return,
+            Err(SourceError::BadFrame { .. }) => {
+                counters.bad_frames.fetch_add(1, Ordering::Relaxed);
+            }
+            Err(SourceError::Lost(e)) => {
+                counters.bad_frames.fetch_add(1, Ordering::Relaxed);
+                tracing::warn!("depth source lost: {e}; retrying");
+                std::thread::sleep(Duration::from_millis(200));
+            }
+            Err(SourceError::Fatal(e)) => {
+                let _ = fail.blocking_send(Decided::SourceFailed(e));
+                return;
+            }
+        }
+    }
+}
+
+pub struct EstimatorCtx {
+    pub link: LinkHandle,
+    pub rt: tokio::runtime::Handle,
+    pub intrinsics: Intrinsics,
+    pub config: Config,
+    pub last_seq: u64,
+    pub shutdown: Shutdown,
+    pub keep_samples: bool,
+    pub on_sample: Option<SampleHook>,
+}
+
+pub fn estimator_thread(
+    mut ctx: EstimatorCtx,
+    rx: std::sync::mpsc::Receiver<Stamped<DepthImage>>,
+    view: watch::Sender<Option<EstimatorView>>,
+    decided: mpsc::Sender<Decided>,
+) -> EstimatorReport {
+    let mut report = EstimatorReport::default();
+    let cfg = &ctx.config;
+    let params = StepParams {
+        camera_mount_pitch_rad: cfg.depth.mount_pitch_rad,
+        frame_period_s: 1.0 / cfg.depth.fps,
+        capture_mode: cfg.capture.mode,
+        image_format: (cfg.capture.mode == CaptureMode::Frame).then_some(cfg.capture.image_format),
+    };
+    let mut pipeline: Option<Pipeline> = None;
+    let state = ctx.link.state();
+    // Without a depth frame for this long the camera has stalled: the trigger still gets
+    // opportunities, at the fallback spacing, flagged; one per frame period while the stall
+    // lasts, the step the trigger assumes.
+    let stall = Duration::from_secs_f64((5.0 / cfg.depth.fps).max(0.15));
+    let period = Duration::from_secs_f64(1.0 / cfg.depth.fps);
+    let mut stalled = false;
+    loop {
+        let wait = if stalled { period } else { stall };
+        let frame = match rx.recv_timeout(wait) {
+            Ok(f) => {
+                stalled = false;
+                Some(f)
+            }
+            Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {
+                stalled = true;
+                None
+            }
+            Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => return report,
+        };
+        if ctx.shutdown.is_stopping() {
+            return report;
+        }
+        let started = mono_ns();
+        if pipeline.is_none() {
+            if let Some(home) = state.borrow().as_ref().map(|s| s.home) {
+                let mut p = Pipeline::new(
+                    cfg.estimator.clone(),
+                    cfg.trigger,
+                    params,
+                    LocalFrame::new(home),
+                );
+                p.set_last_seq(ctx.last_seq);
+                pipeline = Some(p);
+            }
+        }
+        let t = frame.as_ref().map_or(started, |f| f.mono_ns);
+        let outcome = match pipeline.as_mut() {
+            None => StepOutcome::Suspended {
+                reason: "no position from the autopilot yet".into(),
+            },
+            Some(p) => {
+                let pose = ctx
+                    .rt
+                    .block_on(ctx.link.pose_at_mono_ns(t))
+                    .map_err(|e| e.to_string());
+                let boot_us = ctx
+                    .rt
+                    .block_on(ctx.link.boot_ns_at_mono_ns(t))
+                    .map(|ns| ns / 1000);
+                p.on_frame(FrameInput {
+                    mono_ns: t,
+                    depth: frame.as_ref().map(|f| &f.data),
+                    intrinsics: &ctx.intrinsics,
+                    pose,
+                    boot_us,
+                    unix_us: unix_us_at(t),
+                })
+            }
+        };
+        let (estimate, record) = match outcome {
+            StepOutcome::Suspended { reason } => {
+                report.frames_suspended += 1;
+                view.send_replace(Some(EstimatorView::Suspended { reason }));
+                (None, None)
+            }
+            StepOutcome::Wait { estimate } => (Some(estimate), None),
+            StepOutcome::Capture { estimate, record } => (Some(estimate), Some(record)),
+        };
+        let pos_ned_m = match &record {
+            Some(r) => Some([r.position.north_m, r.position.east_m, -r.position.up_m]),
+            None if estimate.is_some() => ctx
+                .rt
+                .block_on(ctx.link.pose_at_mono_ns(t))
+                .ok()
+                .map(|p| p.pos_ned_m.to_array()),
+            None => None,
+        };
+        let sample = FrameSample {
+            mono_ns: t,
+            pos_ned_m,
+            spacing_m: estimate.as_ref().and_then(|e| e.spacing.chosen_m),
+            occlusion_degree: estimate
+                .as_ref()
+                .and_then(|e| e.occlusion)
+                .map(|o| o.degree),
+            suspended: estimate.is_none(),
+            captured: record.is_some(),
+            busy_ns: mono_ns().saturating_sub(started),
+        };
+        report.busy_ns += sample.busy_ns;
+        if let Some(cb) = ctx.on_sample.as_mut() {
+            cb(&sample);
+        }
+        if ctx.keep_samples {
+            report.samples.push(sample);
+        }
+        if let Some(e) = estimate {
+            view.send_replace(Some(EstimatorView::Estimate {
+                mono_ns: t,
+                estimate: e,
+            }));
+        }
+        if let Some(r) = record {
+            if decided.blocking_send(Decided::Capture(r)).is_err() {
+                return report;
+            }
+        }
+    }
+}
