@@ -64,6 +64,8 @@ fn shipped_roof_map_matches_the_closed_forms() {
         "120",
         "--hfov-deg",
         "69",
+        "--model",
+        "occlusion",
     ]);
     assert_eq!(v["status"], "ok");
     // f = 80/tan(34.5°); roof at 20 m, ground at 40 m: Δw = 0.025 1/m.
@@ -177,10 +179,78 @@ fn human_summary_names_the_chosen_spacing_and_its_bound() {
     ]);
     assert!(out.status.success());
     let s = String::from_utf8_lossy(&out.stdout);
+    // The default, the quality model: the targets, each one's spacing, the
+    // prediction at the chosen spacing. The roof's 20 m of relief binds the
+    // 2 px parallax at 2/(f·Δw) = 0.687 m.
+    for want in [
+        "targets        lightfield profile: parallax 2 px",
+        "spacing  parallax        0.687 m      predicted at chosen: 2.00 px",
+        "chosen         0.687 m (quality model, bound: parallax)",
+        "terms          parallax, visibility, views, mmds, coverage",
+    ] {
+        assert!(s.contains(want), "{want:?} missing from:\n{s}");
+    }
+    let out = alfd(&[
+        "estimate",
+        "--depth",
+        "tests/data/roof_160x120.z16",
+        "--width",
+        "160",
+        "--height",
+        "120",
+        "--hfov-deg",
+        "69",
+        "--model",
+        "occlusion",
+    ]);
+    let s = String::from_utf8_lossy(&out.stdout);
     assert!(
         s.contains("chosen") && s.contains("bound: occlusion"),
         "{s}"
     );
+}
+
+/// The mapping profile and targets set one by one: the bound follows, and a
+/// target out of range is refused naming the flag's field.
+#[test]
+fn quality_targets_from_the_command_line() {
+    let base = [
+        "estimate",
+        "--depth",
+        "tests/data/roof_160x120.z16",
+        "--width",
+        "160",
+        "--height",
+        "120",
+        "--hfov-deg",
+        "69",
+    ];
+    let v = json(&[&base[..], &["--profile", "mapping"]].concat());
+    assert_eq!(v["active_bound"], "forward_overlap");
+    assert_eq!(v["quality"]["targets"]["profile"], "mapping");
+    assert_eq!(v["quality"]["targets"]["views_per_point_min"], 3);
+    assert!(within(
+        f(&v, &["quality", "predicted", "forward_overlap"]),
+        0.8,
+        1e-9
+    ));
+    let v = json(
+        &[
+            &base[..],
+            &["--parallax-px", "off", "--forward-overlap", "0.5"],
+        ]
+        .concat(),
+    );
+    assert!(v["quality"]["targets"]["parallax_px"].is_null());
+    assert!(within(
+        f(&v, &["quality", "targets", "forward_overlap"]),
+        0.5,
+        1e-12
+    ));
+    let out = alfd(&[&base[..], &["--unseen-fraction-max", "2"]].concat());
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("quality.unseen_fraction_max"), "{err}");
 }
 
 fn write_two_level_z16(
@@ -210,7 +280,7 @@ fn hand_made_two_level_maps_match_design_within_two_percent() {
     // O_max small enough that one edge per row binds.
     std::fs::write(
         &config,
-        "[sampling]\nocclusion_max = 0.001\nspacing_min_m = 0.001\n",
+        "[sampling]\nmodel = \"occlusion\"\nocclusion_max = 0.001\nspacing_min_m = 0.001\n",
     )
     .unwrap();
     for (w, h, split, near, far, fov, pitch) in [

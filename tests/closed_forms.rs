@@ -2,7 +2,7 @@
 //! disparity rates measured by differentiating the paper's projection (eq. 5)
 //! with dual numbers (exact derivatives, no finite-difference error), to 1e-9.
 
-use alfd::core::{DepthData, DepthImage, Estimator, EstimatorParams, Intrinsics};
+use alfd::core::{DepthData, DepthImage, Estimator, EstimatorParams, Intrinsics, Model};
 use std::ops::{Add, Div, Mul, Sub};
 
 #[derive(Clone, Copy, Debug)]
@@ -73,7 +73,7 @@ fn params() -> EstimatorParams {
     EstimatorParams {
         score: None,
         spacing_min_m: 1e-6,
-        ..EstimatorParams::default()
+        ..EstimatorParams::with_model(Model::Occlusion)
     }
 }
 

@@ -39,7 +39,7 @@
 //! they are not (`docs/occlusion-check.md`).
 
 use alfd::core::params::GainModel;
-use alfd::core::{DepthData, DepthImage, Estimator, EstimatorParams, Intrinsics};
+use alfd::core::{DepthData, DepthImage, Estimator, EstimatorParams, Intrinsics, Model};
 
 /// A point or direction in the slice: `x` along track, `z` up, metres.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -286,7 +286,7 @@ fn core_density_with(
         valid_fraction_min: 0.2,
         pitch_max_rad: 80f64.to_radians(),
         gain_model,
-        ..EstimatorParams::default()
+        ..EstimatorParams::with_model(Model::Occlusion)
     };
     p.validate().expect("params");
     let est = Estimator::new(p)

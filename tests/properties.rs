@@ -3,7 +3,9 @@
 //! (default 100000, which CI runs); `ALFD_PROPTEST_CASES=1000000` is the long run.
 
 use alfd::core::params::ScoreParams;
-use alfd::core::{DepthData, DepthImage, Estimate, Estimator, EstimatorParams, Intrinsics, Model};
+use alfd::core::{
+    Bound, DepthData, DepthImage, Estimate, Estimator, EstimatorParams, Intrinsics, Model, Profile,
+};
 use proptest::prelude::*;
 
 fn cases() -> u32 {
@@ -101,7 +103,7 @@ fn all_params() -> EstimatorParams {
             step_px: 1,
             min_coverage: 0.3,
         }),
-        ..EstimatorParams::default()
+        ..EstimatorParams::with_model(Model::Occlusion)
     }
 }
 
@@ -143,9 +145,59 @@ proptest! {
         }
     }
 
+    /// The quality model (issue 13): every spacing finite and positive, and
+    /// the chosen one keeps every target by the frame's own prediction (unless
+    /// the config's floor lifted it above them).
+    #[test]
+    fn quality_model_keeps_every_target_it_predicts(
+        c in random_case(),
+        mapping in any::<bool>(),
+    ) {
+        let profile = if mapping { Profile::Mapping } else { Profile::Lightfield };
+        let p = EstimatorParams {
+            score: None,
+            quality: profile.targets(),
+            ..EstimatorParams::with_model(Model::Quality)
+        };
+        let e = run(&c, &p);
+        let s = e.spacing;
+        for x in [s.parallax_m, s.forward_overlap_m, s.unseen_m, s.views_m, s.coverage_m, s.chosen_m].into_iter().flatten() {
+            prop_assert!(x.is_finite() && x > 0.0, "{:?}", s);
+        }
+        if !e.is_ok() {
+            prop_assert!(e.quality.is_none() && s.chosen_m.is_none());
+            return Ok(());
+        }
+        let chosen = s.chosen_m.unwrap();
+        let q = e.quality.expect("the quality model says its targets");
+        prop_assert_eq!(q.targets, p.quality);
+        if let Some(px) = q.parallax_px { prop_assert!(finite_nonneg(px)); }
+        if let Some(o) = q.forward_overlap { prop_assert!((0.0..=1.0).contains(&o)); }
+        if let Some(u) = q.unseen_fraction { prop_assert!((0.0..=1.0).contains(&u)); }
+        if e.active_bound == Some(Bound::ConfigMin) {
+            return Ok(());
+        }
+        for x in [s.parallax_m, s.forward_overlap_m, s.unseen_m, s.views_m, s.coverage_m].into_iter().flatten() {
+            prop_assert!(chosen <= x, "chosen {chosen} above a target's {x}: {:?}", s);
+        }
+        let t = q.targets;
+        if let (Some(px), Some(target)) = (q.parallax_px, t.parallax_px) {
+            prop_assert!(px <= target * (1.0 + 1e-9), "parallax {px} px");
+        }
+        if let (Some(o), Some(target), Some(_)) = (q.forward_overlap, t.forward_overlap, s.forward_overlap_m) {
+            prop_assert!(o >= target - 1e-9, "overlap {o}");
+        }
+        if let Some(u) = q.unseen_fraction {
+            prop_assert!(u <= t.unseen_fraction_max, "unseen {u}");
+        }
+        if let (Some(k), Some(_)) = (q.views_per_point, s.views_m) {
+            prop_assert!(k >= t.views_per_point_min, "{k} views");
+        }
+    }
+
     #[test]
     fn occlusion_aware_spacing_never_exceeds_mmds(c in random_case()) {
-        let p = EstimatorParams { score: None, ..EstimatorParams::default() };
+        let p = EstimatorParams { score: None, ..EstimatorParams::with_model(Model::Occlusion) };
         let occ = run(&c, &p);
         let mm = run(&c, &EstimatorParams { model: Model::Mmds, ..p.clone() });
         if let (Some(o), Some(m)) = (occ.spacing.occlusion_m, occ.spacing.mmds_m) {
@@ -236,7 +288,7 @@ proptest! {
 
     #[test]
     fn scene_without_boundaries_gives_exactly_mmds(c in smooth_case()) {
-        let p = EstimatorParams { score: None, ..EstimatorParams::default() };
+        let p = EstimatorParams { score: None, ..EstimatorParams::with_model(Model::Occlusion) };
         let occ = run(&c, &p);
         let mm = run(&c, &EstimatorParams { model: Model::Mmds, ..p.clone() });
         prop_assert_eq!(occ.occlusion.map(|o| o.boundaries), Some(0));
@@ -247,7 +299,7 @@ proptest! {
 
     #[test]
     fn spacing_shrinks_as_occluder_contrast_grows((c, rect, seq) in occluder_case()) {
-        let p = EstimatorParams { score: None, ..EstimatorParams::default() };
+        let p = EstimatorParams { score: None, ..EstimatorParams::with_model(Model::Occlusion) };
         let (x0, y0, rw, rh) = rect;
         let mut last: Option<(f64, f64)> = None;
         for &df in &seq {

@@ -733,8 +733,9 @@ fn predict(
             .filter(|v| v.samples > 0)
             .map(|v| v.unseen_at(spacing_m)),
         views_per_point: vis.and_then(|v| v.interval_min_m).and_then(|l| {
-            // floor(L/b) captures fall in an interval of length L whatever the phase.
-            let n = (l / spacing_m).floor();
+            // floor(L/b) captures fall in an interval of length L whatever the
+            // phase (a relative 1e-9 so that b = L/k, as the bound sets it, is k).
+            let n = (l / spacing_m * (1.0 + 1e-9)).floor();
             (n.is_finite() && n >= 0.0).then(|| n.min(u32::MAX as f64) as u32)
         }),
     }

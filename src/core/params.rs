@@ -249,6 +249,15 @@ fn in_range(x: f64, lo: f64, hi: f64) -> bool {
 }
 
 impl EstimatorParams {
+    /// The defaults with another model (the tests of the paper's occlusion
+    /// model, the comparisons).
+    pub fn with_model(model: Model) -> Self {
+        EstimatorParams {
+            model,
+            ..EstimatorParams::default()
+        }
+    }
+
     pub fn validate(&self) -> Result<(), ParamError> {
         let p = self;
         let q = &p.quality;

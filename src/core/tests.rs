@@ -30,7 +30,7 @@ fn stripes(w: usize, h: usize, stripe: usize, d1: f32, d2: f32) -> DepthImage {
 fn no_score() -> EstimatorParams {
     EstimatorParams {
         score: None,
-        ..EstimatorParams::default()
+        ..EstimatorParams::with_model(Model::Occlusion)
     }
 }
 
@@ -252,8 +252,13 @@ fn scene_without_boundaries_is_exactly_mmds_and_has_no_occlusion_term() {
     let intr = Intrinsics::from_hfov_deg(200, 10, 60.0, None).unwrap();
     let row: Vec<f32> = (0..200).map(|i| 30.0 + 0.05 * i as f32).collect();
     let img = metres(200, 10, row.repeat(10));
-    let e = run(&img, &intr, 0.2, &EstimatorParams::default());
-    let mut mm = EstimatorParams::default();
+    let e = run(
+        &img,
+        &intr,
+        0.2,
+        &EstimatorParams::with_model(Model::Occlusion),
+    );
+    let mut mm = EstimatorParams::with_model(Model::Occlusion);
     mm.model = Model::Mmds;
     let m = run(&img, &intr, 0.2, &mm);
     assert_eq!(e.occlusion.unwrap().boundaries, 0);
@@ -271,7 +276,7 @@ fn scene_without_boundaries_is_exactly_mmds_and_has_no_occlusion_term() {
 fn pitch_extremes_are_typed_outcomes() {
     let intr = Intrinsics::from_hfov_deg(64, 4, 69.0, None).unwrap();
     let img = stripes(64, 4, 16, 20.0, 40.0);
-    let p = EstimatorParams::default();
+    let p = EstimatorParams::with_model(Model::Occlusion);
     for deg in [80.0001f64, 89.999, 90.0, -90.0, 135.0, 1e9] {
         let e = run(&img, &intr, deg.to_radians(), &p);
         assert_eq!(
@@ -300,7 +305,7 @@ fn all_sky_falls_to_the_config_maximum() {
         &metres(32, 8, vec![f32::INFINITY; 256]),
         &intr,
         0.0,
-        &EstimatorParams::default(),
+        &EstimatorParams::with_model(Model::Occlusion),
     );
     assert!(e.is_ok());
     assert_eq!(e.inv_depth, None);
@@ -308,7 +313,7 @@ fn all_sky_falls_to_the_config_maximum() {
     assert_eq!(e.spacing.chosen_m, Some(100.0));
     assert_eq!(e.spacing.permissible_m, None);
     // With sky as scene: w = 0 everywhere, Δw = 0 and w_max = 0: still unbounded.
-    let mut p = EstimatorParams::default();
+    let mut p = EstimatorParams::with_model(Model::Occlusion);
     p.sky_is_scene = true;
     let e = run(&metres(32, 8, vec![f32::INFINITY; 256]), &intr, 0.0, &p);
     assert_eq!(e.active_bound, Some(Bound::ConfigMax));
@@ -323,7 +328,7 @@ fn flat_scene_is_bounded_by_coverage() {
         &metres(100, 10, vec![40.0; 1000]),
         &intr,
         0.0,
-        &EstimatorParams::default(),
+        &EstimatorParams::with_model(Model::Occlusion),
     );
     assert_eq!(e.spacing.mmds_m, None);
     assert!(close(e.spacing.coverage_m.unwrap(), 32.0, 1e-6));
@@ -337,7 +342,7 @@ fn single_pixel_and_invalid_frames() {
         &metres(1, 1, vec![10.0]),
         &intr,
         0.0,
-        &EstimatorParams::default(),
+        &EstimatorParams::with_model(Model::Occlusion),
     );
     assert!(e.is_ok());
     assert_eq!(e.occlusion.unwrap().boundaries, 0);
@@ -352,7 +357,7 @@ fn single_pixel_and_invalid_frames() {
             &metres(1, 1, vec![bad]),
             &intr,
             0.0,
-            &EstimatorParams::default(),
+            &EstimatorParams::with_model(Model::Occlusion),
         );
         assert_eq!(e.no_estimate, Some(NoEstimate::TooFewValidPixels), "{bad}");
         assert_eq!(e.valid_samples, 0);
@@ -361,7 +366,12 @@ fn single_pixel_and_invalid_frames() {
     let mut d = vec![f32::NAN; 100];
     d[..15].fill(12.0);
     let intr = Intrinsics::from_hfov_deg(100, 1, 60.0, None).unwrap();
-    let e = run(&metres(100, 1, d), &intr, 0.0, &EstimatorParams::default());
+    let e = run(
+        &metres(100, 1, d),
+        &intr,
+        0.0,
+        &EstimatorParams::with_model(Model::Occlusion),
+    );
     assert_eq!(e.no_estimate, Some(NoEstimate::TooFewValidPixels));
     assert!(close(e.valid_fraction, 0.15, 1e-12));
 }
@@ -377,7 +387,12 @@ fn extreme_fov_focal_and_depth_stay_finite() {
             (1.0, f32::INFINITY),
         ] {
             let img = stripes(w, 2, (w / 2).max(1), d1, d2);
-            let e = run(&img, &intr, 0.3, &EstimatorParams::default());
+            let e = run(
+                &img,
+                &intr,
+                0.3,
+                &EstimatorParams::with_model(Model::Occlusion),
+            );
             let c = e.spacing.chosen_m.unwrap();
             assert!(c.is_finite() && c > 0.0, "fov {fov} d {d1}/{d2}: {c}");
             for x in [
@@ -398,7 +413,7 @@ fn extreme_fov_focal_and_depth_stay_finite() {
             &stripes(64, 2, 8, 5.0, 9.0),
             &intr,
             0.0,
-            &EstimatorParams::default(),
+            &EstimatorParams::with_model(Model::Occlusion),
         );
         assert!(e.spacing.chosen_m.unwrap().is_finite());
     }
@@ -557,7 +572,7 @@ fn score_at_the_current_pitch_reproduces_the_direct_degree() {
     // the candidate equal to the current pitch is the estimate's own degree.
     let intr = Intrinsics::from_hfov_deg(320, 16, 69.0, None).unwrap();
     let img = stripes(320, 16, 10, 20.0, 40.0);
-    let mut p = EstimatorParams::default();
+    let mut p = EstimatorParams::with_model(Model::Occlusion);
     let phi = 10f64.to_radians();
     p.score = Some(ScoreParams {
         candidates_rad: vec![-phi, 0.0, phi],
@@ -605,14 +620,17 @@ fn size_mismatch_is_a_calling_error() {
 
 #[test]
 fn default_params_validate_and_bad_ones_name_their_field() {
-    assert_eq!(EstimatorParams::default().validate(), Ok(()));
-    let mut p = EstimatorParams::default();
+    assert_eq!(
+        EstimatorParams::with_model(Model::Occlusion).validate(),
+        Ok(())
+    );
+    let mut p = EstimatorParams::with_model(Model::Occlusion);
     p.occlusion_max = 0.0;
     assert_eq!(p.validate().unwrap_err().field, "sampling.occlusion_max");
-    let mut p = EstimatorParams::default();
+    let mut p = EstimatorParams::with_model(Model::Occlusion);
     p.spacing_max_m = 0.01;
     assert_eq!(p.validate().unwrap_err().field, "sampling.spacing_max_m");
-    let mut p = EstimatorParams::default();
+    let mut p = EstimatorParams::with_model(Model::Occlusion);
     p.pitch_max_rad = 1.6;
     assert_eq!(p.validate().unwrap_err().field, "estimator.pitch_max_deg");
 }

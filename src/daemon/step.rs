@@ -492,7 +492,10 @@ mod tests {
             );
             assert!((r.position.rel_alt_m - 40.0).abs() < 0.01);
             assert_eq!(r.position.up_m, 40.0);
-            assert!(r.intrinsics.is_some() && r.model == "occlusion");
+            assert!(r.intrinsics.is_some() && r.model == "quality");
+            let q = r.quality.as_ref().expect("the quality model's decision");
+            assert_eq!(q.targets.profile, "lightfield");
+            assert!(q.predicted.parallax_px.is_some_and(|px| px <= 2.0 + 1e-9));
         }
         assert!(recs
             .windows(2)

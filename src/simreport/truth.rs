@@ -150,7 +150,8 @@ texture = { colour = [0.7, 0.6, 0.6], contrast = 0.3, seed = 2 }
     fn truth_estimates_equal_a_direct_estimate_at_each_pose() {
         let scene = Scene::parse(SCENE, "inline").expect("the inline scene parses");
         let intr = Intrinsics::from_hfov_deg(64, 48, 69.0, None).unwrap();
-        let params = EstimatorParams::default();
+        // The occlusion model, so the degree passes through too.
+        let params = EstimatorParams::with_model(crate::core::Model::Occlusion);
         let poses = poses(intr);
         let track = truth_estimates(&scene, intr, &params, &poses);
         assert_eq!(track.len(), poses.len());
