@@ -207,6 +207,7 @@ pub struct RawEstimator {
     pub decimation_levels: Option<Vec<i64>>,
     pub sspa_iterations: Option<i64>,
     pub sspa_trim_sigma: Option<f64>,
+    pub visibility_samples_max: Option<i64>,
 }
 
 #[derive(Debug, Default, Deserialize)]
@@ -345,6 +346,9 @@ impl RawConfig {
             }
         }
         let e = &self.estimator;
+        if let Some(n) = e.visibility_samples_max {
+            p.visibility_samples_max = count("estimator.visibility_samples_max", n)?;
+        }
         set!(e.valid_fraction_min, p.valid_fraction_min);
         set!(e.percentile_low, p.percentile_low);
         set!(e.percentile_high, p.percentile_high);

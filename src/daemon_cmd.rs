@@ -4,7 +4,7 @@
 use crate::cli::bad;
 use alfd::capture::CaptureMode;
 use alfd::config::{Config, SimPose};
-use alfd::core::Model;
+use alfd::core::{Model, Profile};
 use alfd::daemon::devices::{self, LinkSlot};
 use alfd::daemon::run::{next_flight_dir, run, RunOptions, RunReport};
 use alfd::daemon::sim::{run_sim, SimArgs};
@@ -143,9 +143,15 @@ pub struct SimCliArgs {
     /// frame, camera_command or autopilot_distance.
     #[arg(long, default_value = "frame")]
     mode: String,
-    /// occlusion, mmds, sspa or fixed.
+    /// quality (the default), occlusion, mmds, sspa or fixed.
     #[arg(long)]
     model: Option<String>,
+    /// Quality targets: lightfield (the default) or mapping.
+    #[arg(long)]
+    profile: Option<String>,
+    /// Also measure each frame against the last capture ([trigger] closed_loop).
+    #[arg(long)]
+    closed_loop: bool,
     /// Render at the simulator's truth, or at the pose alfd believes.
     #[arg(long, default_value = "truth")]
     pose: String,
@@ -171,9 +177,17 @@ pub fn sim(a: SimCliArgs) -> Result<ExitCode> {
         }
     };
     let model = match &a.model {
-        Some(m) => Some(
-            Model::parse(m)
-                .ok_or_else(|| bad(format!("--model {m}: use occlusion, mmds, sspa or fixed")))?,
+        Some(m) => Some(Model::parse(m).ok_or_else(|| {
+            bad(format!(
+                "--model {m}: use quality, occlusion, mmds, sspa or fixed"
+            ))
+        })?),
+        None => None,
+    };
+    let profile = match &a.profile {
+        Some(p) => Some(
+            Profile::parse(p)
+                .ok_or_else(|| bad(format!("--profile {p}: use lightfield or mapping")))?,
         ),
         None => None,
     };
@@ -210,6 +224,8 @@ pub fn sim(a: SimCliArgs) -> Result<ExitCode> {
         height: a.height,
         mode,
         model,
+        profile,
+        closed_loop: a.closed_loop,
         pose,
         gcs: a.gcs,
         progress: !a.no_progress && std::io::stderr().is_terminal(),

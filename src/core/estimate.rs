@@ -62,6 +62,26 @@ pub enum Bound {
 }
 
 impl Bound {
+    /// A number for a channel that carries only numbers (NAMED_VALUE_FLOAT
+    /// `ALF_BND`): 1 parallax, 2 forward_overlap, 3 unseen_fraction,
+    /// 4 views_per_point, 5 mmds, 6 sspa, 7 occlusion, 8 coverage,
+    /// 9 config_min, 10 config_max, 11 fixed.
+    pub fn code(self) -> u8 {
+        match self {
+            Bound::Parallax => 1,
+            Bound::ForwardOverlap => 2,
+            Bound::Unseen => 3,
+            Bound::Views => 4,
+            Bound::Mmds => 5,
+            Bound::Sspa => 6,
+            Bound::Occlusion => 7,
+            Bound::Coverage => 8,
+            Bound::ConfigMin => 9,
+            Bound::ConfigMax => 10,
+            Bound::Fixed => 11,
+        }
+    }
+
     pub fn as_str(self) -> &'static str {
         match self {
             Bound::Parallax => "parallax",
@@ -310,6 +330,8 @@ pub struct Estimator {
     selector: Selector,
     /// Per-sample disparity per metre of baseline (the parallax target's scratch).
     disparity: Vec<f32>,
+    /// The visibility sweep's grid when it is coarser than the estimate's.
+    vis_grid: InvGrid,
 }
 
 impl Estimator {
@@ -321,6 +343,7 @@ impl Estimator {
             score_grid: InvGrid::default(),
             selector: Selector::default(),
             disparity: Vec::new(),
+            vis_grid: InvGrid::default(),
         }
     }
 
@@ -494,8 +517,27 @@ impl Estimator {
         }
         let mut vis: Option<Visibility> = None;
         if p.model == Model::Quality {
+            // The sweep's own stride: at most `visibility_samples_max` samples.
+            let ratio = self.grid.samples() as f64 / p.visibility_samples_max as f64;
+            let vstep = if ratio > 1.0 {
+                (step as f64 * ratio.sqrt()).ceil() as usize
+            } else {
+                step
+            };
+            let vgrid = if vstep == step {
+                &self.grid
+            } else {
+                fill_grid(
+                    image,
+                    p.track_axis,
+                    vstep,
+                    &p.depth_range,
+                    &mut self.vis_grid,
+                );
+                &self.vis_grid
+            };
             let v = visibility(
-                &self.grid,
+                vgrid,
                 &geom,
                 pitch_rad,
                 &VisibilityParams {

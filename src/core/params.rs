@@ -181,6 +181,11 @@ pub struct EstimatorParams {
     pub decimation: Decimation,
     pub sspa_iterations: usize,
     pub sspa_trim_sigma: f64,
+    /// The visibility sweep samples the frame more coarsely than the estimate
+    /// when the estimate's grid has more samples than this: its cost per
+    /// sample is ~25 reads, and at 640 × 480 it starved the daemon's camera
+    /// and writer (docs/error-vs-runtime.md has the error it costs).
+    pub visibility_samples_max: usize,
 }
 
 impl Default for EstimatorParams {
@@ -217,6 +222,7 @@ impl Default for EstimatorParams {
             decimation: Decimation::Fixed(1),
             sspa_iterations: 3,
             sspa_trim_sigma: 2.5,
+            visibility_samples_max: 80_000,
         }
     }
 }
@@ -417,6 +423,11 @@ impl EstimatorParams {
                 )?;
             }
         }
+        check(
+            p.visibility_samples_max >= 100,
+            "estimator.visibility_samples_max",
+            || format!("must be at least 100, got {}", p.visibility_samples_max),
+        )?;
         check(
             (1..=100).contains(&p.sspa_iterations),
             "estimator.sspa_iterations",

@@ -29,6 +29,14 @@ pub const REPORT_KEEP: usize = 1000;
 pub const LOCATING_MAX: usize = 256;
 /// NAMED_VALUE_FLOAT of the fastest ground speed the rate limit allows at the spacing (m/s).
 pub const NAME_VMAX: &str = "ALF_VMAX";
+/// The quality model's predictions at the spacing in force, once a second:
+/// parallax (px), forward overlap (0–1), unseen fraction (0–1), views per
+/// point, and the bound that set the spacing as `Bound::code`.
+pub const NAME_PARALLAX: &str = "ALF_PAR";
+pub const NAME_OVERLAP: &str = "ALF_FOV";
+pub const NAME_UNSEEN: &str = "ALF_UNS";
+pub const NAME_VIEWS: &str = "ALF_VPP";
+pub const NAME_BOUND: &str = "ALF_BND";
 const SECOND_NS: u64 = 1_000_000_000;
 /// At most one "too fast" STATUSTEXT in this long.
 const TOO_FAST_EVERY_NS: u64 = 10_000_000_000;
@@ -40,6 +48,9 @@ pub struct Now {
     /// The autopilot's boot clock, 0 while time is not in sync.
     pub boot_ms: u32,
 }
+
+/// A suspension whose reason changes is said again at most this often.
+const SUSPENSION_REPEAT_NS: u64 = 10_000_000_000;
 
 /// The estimator's latest word (a latest-value: intermediate ones may be skipped).
 #[derive(Clone, Debug, PartialEq)]
@@ -117,6 +128,8 @@ pub struct Coordinator {
     /// Whether alfd has a colour camera whose frames it saves.
     saves_frames: bool,
     suspended: Option<String>,
+    /// When a suspension was last said (a new reason at most every 10 s).
+    suspension_said_ns: u64,
     fallback: bool,
     terms: Option<Terms>,
     terms_said_ns: u64,
@@ -151,6 +164,7 @@ impl Coordinator {
             intrinsics,
             config: config.clone(),
             suspended: None,
+            suspension_said_ns: 0,
             fallback: false,
             terms: None,
             terms_said_ns: 0,
@@ -188,6 +202,18 @@ impl Coordinator {
         let c = &self.config;
         let terms = match c.estimator.model {
             crate::core::Model::Fixed => "fixed".to_string(),
+            crate::core::Model::Quality => {
+                // The targets in force, in one 50-byte chunk where they fit.
+                let q = c.estimator.quality;
+                let mut t = format!("{}", q.profile.as_str());
+                if let Some(px) = q.parallax_px {
+                    t += &format!(" {px}px");
+                }
+                if let Some(o) = q.forward_overlap {
+                    t += &format!(" {:.0}%", 100.0 * o);
+                }
+                format!("{t} u{} k{}", q.unseen_fraction_max, q.views_per_point_min)
+            }
             m => format!("{} model", m.as_str()),
         };
         let how = match c.capture.mode {
@@ -215,6 +241,13 @@ impl Coordinator {
                     if self.suspended.is_none() {
                         let text = format!("alfd: triggers suspended: {reason}");
                         self.status(&mut out, MavSeverity::MAV_SEVERITY_WARNING, &text);
+                        self.suspension_said_ns = now.mono_ns;
+                    } else if now.mono_ns >= self.suspension_said_ns + SUSPENSION_REPEAT_NS {
+                        // A new reason (no position yet, then on the ground) is
+                        // what the operator must act on; at most one per 10 s.
+                        let text = format!("alfd: still suspended: {reason}");
+                        self.status(&mut out, MavSeverity::MAV_SEVERITY_WARNING, &text);
+                        self.suspension_said_ns = now.mono_ns;
                     }
                     self.suspended = Some(reason);
                 }
@@ -606,6 +639,26 @@ impl Coordinator {
         };
         for m in CameraProtocol::named_values(spacing, occ, now.boot_ms) {
             out.push(send(m));
+        }
+        // The quality model: each target's predicted value at the spacing in
+        // force, and which bound set it (`Bound::code`).
+        if let (Some(e), Some(s)) = (&self.last_estimate, spacing) {
+            if let Some(q) = e.predict_at(s) {
+                let values = [
+                    (NAME_PARALLAX, q.parallax_px),
+                    (NAME_OVERLAP, q.forward_overlap),
+                    (NAME_UNSEEN, q.unseen_fraction),
+                    (NAME_VIEWS, q.views_per_point.map(f64::from)),
+                    (NAME_BOUND, e.active_bound.map(|b| b.code() as f64)),
+                ];
+                for (name, v) in values {
+                    if let Some(m) =
+                        v.and_then(|v| CameraProtocol::named_value(name, v, now.boot_ms))
+                    {
+                        out.push(send(m));
+                    }
+                }
+            }
         }
         if let Some(s) = spacing {
             let vmax = self.trigger.speed_advice_mps(s);

@@ -184,6 +184,14 @@ pub fn estimator_thread(
                 pipeline = Some(p);
             }
         }
+        // The autopilot's origin was set or moved (ArduPilot's EKF origin
+        // after its first fixes): positions follow at once, no suspension.
+        if let (Some(p), Some(home)) = (pipeline.as_mut(), state.borrow().as_ref().map(|s| s.home))
+        {
+            if home != p.local().home() {
+                p.set_local(LocalFrame::new(home));
+            }
+        }
         let t = frame.as_ref().map_or(started, |f| f.mono_ns);
         let outcome = match pipeline.as_mut() {
             None => StepOutcome::Suspended {

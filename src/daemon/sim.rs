@@ -7,7 +7,7 @@ use super::devices::{intrinsics, scene_camera_pose};
 use super::run::{run, Devices, FrameSample, Frames, RunError, RunOptions, RunReport, SampleHook};
 use crate::capture::CaptureMode;
 use crate::config::{Config, SimPose};
-use crate::core::{Intrinsics, Model};
+use crate::core::{Intrinsics, Model, Profile};
 use crate::link::{mono_ns, LinkHandle};
 use crate::notify::Notifier;
 use crate::render::SensorModel;
@@ -35,7 +35,12 @@ pub struct SimArgs {
     pub width: usize,
     pub height: usize,
     pub mode: CaptureMode,
+    /// `None`: the quality model.
     pub model: Option<Model>,
+    /// The quality targets' profile (`None`: lightfield, the default).
+    pub profile: Option<Profile>,
+    /// `[trigger] closed_loop`: also measure against the last capture.
+    pub closed_loop: bool,
     pub pose: SimPose,
     /// Forward MAVLink to a ground station (`udpout:HOST:PORT`).
     pub gcs: Option<String>,
@@ -135,6 +140,8 @@ impl Default for SimArgs {
             height: 480,
             mode: CaptureMode::Frame,
             model: None,
+            profile: None,
+            closed_loop: false,
             pose: SimPose::Truth,
             gcs: None,
             progress: true,
@@ -181,7 +188,9 @@ fn sim_config_text(a: &SimArgs, scene_path: &Path, flight_dir: &Path, scene: &Sc
         // Not a mode one configures: the config refuses it by name.
         CaptureMode::Command => "command",
     };
-    let model = a.model.unwrap_or(Model::Occlusion).as_str();
+    let model = a.model.unwrap_or(Model::Quality).as_str();
+    let profile = a.profile.unwrap_or_default().as_str();
+    let closed_loop = a.closed_loop;
     let pose = match a.pose {
         SimPose::Truth => "truth",
         SimPose::Telemetry => "telemetry",
@@ -221,12 +230,16 @@ mount_pitch_deg = {pitch}
 scale_m = 0.01
 max_range_m = {range}
 
+[quality]
+profile = "{profile}"
+
 [sampling]
 model = "{model}"
 
 [trigger]
 rate_max_hz = {fps}
 fallback_spacing_m = 1.0
+closed_loop = {closed_loop}
 
 [capture]
 dir = {dir:?}
@@ -514,7 +527,8 @@ pub async fn run_sim_with(
         &captures,
         config.trigger.fallback_spacing_m,
         args.speed_mps / args.fps,
-    );
+    )
+    .with_records(&report.records);
     let plots = simreport::plots(&truth, &daemon, &captures, &flight_dir)
         .map_err(|e| setup(format!("plots: {e}")))?;
     let mut track = String::new();
