@@ -227,7 +227,6 @@ async fn ardupilot_late_origin_and_take_off_frame_mode() {
 /// IMAGE_START_CAPTURE handled as a capture in `src/daemon/camera.rs`/`run.rs` (built in
 /// parallel), hence ignored until that is merged.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-#[ignore = "needs IMAGE_START_CAPTURE from the autopilot logged as a capture (daemon/camera.rs, run.rs: in progress in parallel)"]
 async fn ardupilot_distance_trigger_through_the_mavlink_camera() {
     let f = fly("autopilot_distance").await;
     f.until("5 photos by the autopilot", |_, m| m.captures >= 5)
