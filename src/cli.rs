@@ -385,6 +385,23 @@ fn run_tradeoff(a: TradeoffArgs) -> Result<ExitCode> {
         a.repeats,
         tradeoff::markdown(&frames, &rows)
     ))?;
+    let mut mapping = cfg.estimator.clone();
+    mapping.quality = alfd::core::Profile::Mapping.targets();
+    emit(&format!(
+        "\nThe visibility sweep's sampling (quality model, decimation 1; spacing error against the sweep on every sample).\n\nlightfield profile:\n\n{}\nmapping profile:\n\n{}",
+        tradeoff::visibility_markdown(
+            &frames,
+            &cfg.estimator,
+            &[usize::MAX, 160_000, 80_000, 40_000, 20_000, 10_000],
+            a.repeats
+        ),
+        tradeoff::visibility_markdown(
+            &frames,
+            &mapping,
+            &[usize::MAX, 160_000, 80_000, 40_000, 20_000, 10_000],
+            a.repeats
+        )
+    ))?;
     Ok(ExitCode::SUCCESS)
 }
 

@@ -175,6 +175,77 @@ pub fn markdown(frames: &[Frame], rows: &[Row]) -> String {
     s
 }
 
+/// The visibility sweep's own sampling (`estimator.visibility_samples_max`):
+/// for each cap, the relative error of the views-per-point and unseen-fraction
+/// spacings against the sweep on every sample of the estimate's grid, and the
+/// time of the whole quality estimate, per frame. Both profiles' targets (the
+/// mapping profile's k = 3 makes the views bound bind on more frames).
+pub fn visibility_markdown(
+    frames: &[Frame],
+    base: &EstimatorParams,
+    caps: &[usize],
+    repeats: usize,
+) -> String {
+    use std::fmt::Write;
+    let params = |cap: usize| EstimatorParams {
+        model: Model::Quality,
+        visibility_samples_max: cap,
+        score: None,
+        with_sspa: false,
+        with_occlusion: false,
+        ..base.clone()
+    };
+    let spacings = |est: &mut Estimator, f: &Frame| {
+        est.estimate_at(&f.image, &f.intrinsics, f.pitch_rad, 1)
+            .ok()
+            .map_or((None, None), |e| (e.spacing.views_m, e.spacing.unseen_m))
+    };
+    let mut full = Estimator::new(params(usize::MAX));
+    let reference: Vec<_> = frames.iter().map(|f| spacings(&mut full, f)).collect();
+    let full_us: Vec<f64> = frames
+        .iter()
+        .map(|f| time_us(&mut full, f, 1, repeats))
+        .collect();
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "| visibility samples (max) | views spacing error (mean / max) | unseen spacing error (mean / max) | time per frame (µs) | speed-up vs every sample |"
+    );
+    let _ = writeln!(s, "|---:|---:|---:|---:|---:|");
+    for &cap in caps {
+        let mut est = Estimator::new(params(cap));
+        let (mut ve, mut ue, mut t) = (Vec::new(), Vec::new(), 0.0);
+        for (k, f) in frames.iter().enumerate() {
+            let (v, u) = spacings(&mut est, f);
+            ve.push(relative_error(v, reference[k].0));
+            ue.push(relative_error(u, reference[k].1));
+            t += time_us(&mut est, f, 1, repeats);
+        }
+        let n = frames.len().max(1) as f64;
+        let stats = |e: &[f64]| {
+            format!(
+                "{} / {}",
+                pct(e.iter().sum::<f64>() / n),
+                pct(e.iter().cloned().fold(0.0, f64::max))
+            )
+        };
+        let label = if cap == usize::MAX {
+            "every sample".to_string()
+        } else {
+            cap.to_string()
+        };
+        let _ = writeln!(
+            s,
+            "| {label} | {} | {} | {:.0} | {:.1}× |",
+            stats(&ve),
+            stats(&ue),
+            t / n,
+            full_us.iter().sum::<f64>() / t
+        );
+    }
+    s
+}
+
 fn pct(x: f64) -> String {
     if x.is_finite() {
         format!("{:.2} %", 100.0 * x)
