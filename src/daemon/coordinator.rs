@@ -205,7 +205,7 @@ impl Coordinator {
             crate::core::Model::Quality => {
                 // The targets in force, in one 50-byte chunk where they fit.
                 let q = c.estimator.quality;
-                let mut t = format!("{}", q.profile.as_str());
+                let mut t = q.profile.as_str().to_string();
                 if let Some(px) = q.parallax_px {
                     t += &format!(" {px}px");
                 }

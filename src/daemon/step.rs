@@ -249,7 +249,9 @@ pub const FLIGHT_AXIS_SPEED_MIN_MPS: f64 = 0.5;
 pub fn flight_axis(cam_to_ned: &DMat3, vel_ned_mps: DVec3, fixed: TrackAxis) -> (TrackAxis, f64) {
     let horizontal = |v: DVec3| DVec3::new(v.x, v.y, 0.0);
     let v = horizontal(vel_ned_mps);
-    let axis = if !(v.length() >= FLIGHT_AXIS_SPEED_MIN_MPS) {
+    // NaN speeds (never from the pose buffer, which refuses them) hold too.
+    let moving = v.length() >= FLIGHT_AXIS_SPEED_MIN_MPS;
+    let axis = if !moving {
         fixed
     } else if horizontal(cam_to_ned.x_axis).dot(v).abs()
         >= horizontal(cam_to_ned.y_axis).dot(v).abs()
