@@ -821,7 +821,7 @@ proptest! {
                 prop_assert!(s.survey.view_count() <= 100_001);
             }
             Err(e) => {
-                let _ = e.to_string();
+                prop_assert!(!e.to_string().is_empty());
                 if let Some(line) = e.line() {
                     prop_assert!(line >= 1 && line <= text.lines().count() + 1);
                 }
@@ -829,25 +829,75 @@ proptest! {
         }
     }
 
+    /// An edited daemon config either parses (and the same text gives the same value) or its
+    /// error names what is wrong: a field path, or the line of a TOML syntax error.
     #[test]
     fn config_files_with_edits(text in toml_variant(CONFIGS)) {
-        if let Err(e) = Config::from_text(&text, "edited.toml") {
-            let _ = e.to_string();
-        }
-        let _ = LinkConfig::from_toml(&text);
+        check_config(&text)?;
     }
 
     #[test]
     fn sim_config_files_with_edits(text in toml_variant(SIM_CONFIGS)) {
-        let _ = SimConfig::from_toml(&text);
+        check_sim_config(&text)?;
     }
 
     #[test]
     fn any_text_as_a_scene_or_config(text in "\\PC{0,200}") {
-        let _ = Scene::parse(&text, "any.toml");
-        let _ = Config::from_text(&text, "any.toml");
-        let _ = SimConfig::from_toml(&text);
+        if let Err(e) = Scene::parse(&text, "any.toml") {
+            prop_assert!(!e.to_string().is_empty());
+        }
+        check_config(&text)?;
+        check_sim_config(&text)?;
     }
+}
+
+/// A field path as the config errors name one: `section.key`, a section alone, or an index.
+fn is_field_path(f: &str) -> bool {
+    !f.is_empty()
+        && f.split('.').all(|p| {
+            !p.is_empty() && p.chars().all(|c| c.is_ascii_alphanumeric() || "_[]".contains(c))
+        })
+}
+
+fn check_config(text: &str) -> Result<(), TestCaseError> {
+    use alfd::config::ConfigError;
+    match Config::from_text(text, "edited.toml") {
+        Ok(c) => {
+            let again = Config::from_text(text, "edited.toml").expect("the same text parses again");
+            prop_assert_eq!(format!("{c:?}"), format!("{again:?}"));
+        }
+        Err(ConfigError::Invalid { field, message, .. }) => {
+            prop_assert!(is_field_path(&field), "field {:?}: {}", field, message);
+            prop_assert!(!message.is_empty());
+        }
+        Err(ConfigError::Parse { message, .. }) => {
+            prop_assert!(message.contains("line"), "{}", message);
+        }
+        Err(e) => prop_assert!(false, "reading from text cannot fail to read: {}", e),
+    }
+    if let Err(e) = LinkConfig::from_toml(text) {
+        prop_assert!(is_field_path(&e.field), "field {:?}: {}", e.field, e.problem);
+        prop_assert!(!e.problem.is_empty());
+    }
+    Ok(())
+}
+
+fn check_sim_config(text: &str) -> Result<(), TestCaseError> {
+    use firmware_sim::config::ConfigError;
+    match SimConfig::from_toml(text) {
+        Ok(c) => {
+            let again = SimConfig::from_toml(text).expect("the same text parses again");
+            prop_assert_eq!(format!("{c:?}"), format!("{again:?}"));
+        }
+        Err(ConfigError::Invalid { field, problem }) => {
+            prop_assert!(is_field_path(field), "field {:?}: {}", field, problem);
+        }
+        Err(ConfigError::Parse(message)) => {
+            prop_assert!(message.contains("line"), "{}", message);
+        }
+        Err(e) => prop_assert!(false, "reading from text cannot fail to read: {}", e),
+    }
+    Ok(())
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -874,8 +924,11 @@ proptest! {
         for r in &m.records {
             prop_assert!(CaptureRecord::from_json_line(&r.to_json_line()).is_ok());
         }
-        let _ = geo_txt(&m.records);
-        let _ = transforms(&m.records);
+        // Every record is a line of geo.txt or a stated skip; the same for transforms.json.
+        let (geo, skipped) = geo_txt(&m.records);
+        prop_assert_eq!(geo.lines().count() - 1 + skipped.len(), m.records.len());
+        let (nerf, skipped) = transforms(&m.records);
+        prop_assert_eq!(nerf.map_or(0, |t| t.frames.len()) + skipped.len(), m.records.len());
     }
 
     /// A telemetry log of whole entries reads back entry for entry; after damage, the entries
@@ -926,11 +979,19 @@ proptest! {
             model: "sim".into(),
         };
         let app1 = exif_app1(&g, 640, 480).unwrap();
-        let _ = parse_exif_gps(&apply(&app1, &edits));
+        // Damage may lose the position; what is read back is a position, never garbage.
+        let sane = |p: &alfd::capture::exif::ParsedExif| {
+            (-90.0..=90.0).contains(&p.lat_deg) && (-180.0..=180.0).contains(&p.lon_deg) && p.alt_m.is_finite()
+        };
+        if let Ok(p) = parse_exif_gps(&apply(&app1, &edits)) {
+            prop_assert!(sane(&p), "{:?}", p);
+        }
         let jpeg = alfd::capture::encode_jpeg(&[0; 8 * 8 * 3], 8, 8, 50, Some(app1)).unwrap();
         let jpeg = apply(&jpeg, &edits);
         if let Some(seg) = find_exif_app1(&jpeg) {
-            let _ = parse_exif_gps(seg);
+            if let Ok(p) = parse_exif_gps(seg) {
+                prop_assert!(sane(&p), "{:?}", p);
+            }
         }
     }
 }
