@@ -855,7 +855,9 @@ proptest! {
 fn is_field_path(f: &str) -> bool {
     !f.is_empty()
         && f.split('.').all(|p| {
-            !p.is_empty() && p.chars().all(|c| c.is_ascii_alphanumeric() || "_[]".contains(c))
+            !p.is_empty()
+                && p.chars()
+                    .all(|c| c.is_ascii_alphanumeric() || "_[]".contains(c))
         })
 }
 
@@ -876,7 +878,12 @@ fn check_config(text: &str) -> Result<(), TestCaseError> {
         Err(e) => prop_assert!(false, "reading from text cannot fail to read: {}", e),
     }
     if let Err(e) = LinkConfig::from_toml(text) {
-        prop_assert!(is_field_path(&e.field), "field {:?}: {}", e.field, e.problem);
+        prop_assert!(
+            is_field_path(&e.field),
+            "field {:?}: {}",
+            e.field,
+            e.problem
+        );
         prop_assert!(!e.problem.is_empty());
     }
     Ok(())

@@ -437,13 +437,14 @@ impl Summary {
         ]
         .into_iter()
         .chain(self.quality_targets.as_ref().map(|t| {
-            let opt = |x: Option<f64>| x.map_or("off".to_string(), |v| format!("{v}"));
+            let opt =
+                |x: Option<f64>, unit: &str| x.map_or("off".to_string(), |v| format!("{v}{unit}"));
             format!(
-                "{:<16}{}: parallax {} px, forward overlap {}, unseen <= {}, views >= {}",
+                "{:<16}{}: parallax {}, forward overlap {}, unseen <= {}, views >= {}",
                 "targets",
                 t.profile,
-                opt(t.parallax_px),
-                opt(t.forward_overlap),
+                opt(t.parallax_px, " px"),
+                opt(t.forward_overlap, ""),
                 t.unseen_fraction_max,
                 t.views_per_point_min
             )
@@ -521,6 +522,71 @@ impl Summary {
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    #[test]
+    fn captures_are_counted_per_bound_and_term_and_silent_targets_named() {
+        use crate::capture::{QualityRecord, QualitySpacingM, QualityValues};
+        let targets = QualityTargets {
+            profile: "lightfield".into(),
+            parallax_px: Some(2.0),
+            forward_overlap: None,
+            unseen_fraction_max: 0.002,
+            views_per_point_min: 2,
+        };
+        let records: Vec<CaptureRecord> = (1..=5)
+            .map(|k| {
+                let mut r = crate::capture::record::tests::sample(k);
+                r.spacing.active_bound = if k <= 3 {
+                    "parallax"
+                } else {
+                    "views_per_point"
+                }
+                .into();
+                r.terms = if k == 1 {
+                    vec!["parallax".into(), "views".into()]
+                } else {
+                    vec!["parallax".into(), "views".into(), "visibility".into()]
+                };
+                r.quality = Some(QualityRecord {
+                    targets: targets.clone(),
+                    spacing_m: QualitySpacingM {
+                        parallax: Some(1.0),
+                        forward_overlap: None,
+                        unseen_fraction: None,
+                        views_per_point: Some(2.0),
+                    },
+                    predicted: QualityValues {
+                        parallax_px: Some(2.0),
+                        forward_overlap: None,
+                        unseen_fraction: Some(0.0),
+                        views_per_point: Some(4),
+                    },
+                });
+                r
+            })
+            .collect();
+        let s = summarize(&[], &[], 1.0, 0.0).with_records(&records);
+        assert_eq!(s.captures_by_bound["parallax"], 3);
+        assert_eq!(s.captures_by_bound["views_per_point"], 2);
+        assert_eq!(s.captures_by_term["visibility"], 4);
+        assert_eq!(s.quality_targets, Some(targets));
+        // Forward overlap is not in force; the unseen fraction is and never bound.
+        let never = s.never_bound();
+        assert_eq!(never.len(), 1, "{never:?}");
+        assert!(
+            never[0].starts_with("unseen_fraction (occluders on 4 of"),
+            "{never:?}"
+        );
+        let text = s.render_text();
+        assert!(
+            text.contains("bound by        parallax 3, views_per_point 2"),
+            "{text}"
+        );
+        assert!(
+            text.contains("targets         lightfield: parallax 2 px, forward overlap off"),
+            "{text}"
+        );
+    }
 
     fn sample(along_m: f64, spacing_m: Option<f64>) -> TrackSample {
         TrackSample {
