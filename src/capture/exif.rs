@@ -440,23 +440,33 @@ pub fn parse_exif_gps(app1: &[u8]) -> Result<ParsedExif, ExifError> {
     let gps = pointer(TAG_GPS_IFD)?.ok_or(Missing("IFD"))?;
     let exif = pointer(TAG_EXIF_IFD)?;
 
-    let angle = |value_tag, ref_tag, negative: &str, what| -> Result<f64, ExifError> {
-        let v = find(&gps, value_tag)
-            .and_then(|f| t.rationals(f))
-            .filter(|v| v.len() == 3)
-            .ok_or(Missing(what))?;
-        let r = find(&gps, ref_tag).and_then(text).ok_or(Missing(what))?;
-        let deg = v[0] + v[1] / 60.0 + v[2] / 3600.0;
-        Ok(if r == negative { -deg } else { deg })
-    };
-    let lat_deg = angle(GPS_LATITUDE, GPS_LATITUDE_REF, "S", "latitude")?;
-    let lon_deg = angle(GPS_LONGITUDE, GPS_LONGITUDE_REF, "W", "longitude")?;
+    // A damaged segment can still hold three rationals: an angle beyond its
+    // range (found by tests/byte_streams.rs: 181° of longitude) is refused,
+    // never returned as a position.
+    let angle =
+        |value_tag, ref_tag, negative: &str, max_deg: f64, what| -> Result<f64, ExifError> {
+            let v = find(&gps, value_tag)
+                .and_then(|f| t.rationals(f))
+                .filter(|v| v.len() == 3)
+                .ok_or(Missing(what))?;
+            let r = find(&gps, ref_tag).and_then(text).ok_or(Missing(what))?;
+            let deg = v[0] + v[1] / 60.0 + v[2] / 3600.0;
+            if !(deg.is_finite() && (0.0..=max_deg).contains(&deg)) {
+                return Err(Malformed("GPS angle out of range"));
+            }
+            Ok(if r == negative { -deg } else { deg })
+        };
+    let lat_deg = angle(GPS_LATITUDE, GPS_LATITUDE_REF, "S", 90.0, "latitude")?;
+    let lon_deg = angle(GPS_LONGITUDE, GPS_LONGITUDE_REF, "W", 180.0, "longitude")?;
     let alt = find(&gps, GPS_ALTITUDE)
         .and_then(|f| t.rationals(f))
         .and_then(|v| v.first().copied())
         .ok_or(Missing("altitude"))?;
     let below = find(&gps, GPS_ALTITUDE_REF).is_some_and(|f| f.value.first() == Some(&1));
     let alt_m = if below { -alt } else { alt };
+    if !alt_m.is_finite() {
+        return Err(Malformed("GPS altitude not a number"));
+    }
 
     let gps_time_unix_us = (|| {
         let hms = find(&gps, GPS_TIME_STAMP).and_then(|f| t.rationals(f))?;
