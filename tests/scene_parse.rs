@@ -37,16 +37,7 @@ fn err(text: &str) -> SceneError {
 
 #[test]
 fn shipped_scenes_parse() {
-    for name in [
-        "roof",
-        "building",
-        "tree",
-        "edifice",
-        "open",
-        "canyon",
-        "courtyard",
-        "orchard",
-    ] {
+    for name in alfd::eval::SCENES {
         let p = Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("scenes/{name}.toml"));
         let s = Scene::load(&p).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(s.name, name);

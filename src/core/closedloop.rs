@@ -8,8 +8,17 @@
 use super::depth::{DepthData, DepthImage, Intrinsics};
 use glam::{DMat3, DVec3};
 
-/// Robust ends of the disparity distribution, as the evaluation's truth.
+/// Robust ends of the disparity distribution, the percentiles of the
+/// estimator's inverse-depth range; the evaluation's truth uses the same.
 pub const PARALLAX_PERCENTILES: (f64, f64) = (0.005, 0.995);
+
+/// How far in front of a reprojected point a view's depth may be and still
+/// show its surface: the warping renderer's rule (2 % + 5 cm), shared with
+/// the evaluation's truth.
+#[inline]
+pub fn seen_tolerance_m(depth_m: f64) -> f64 {
+    0.02 * depth_m + 0.05
+}
 
 /// Frames kept since the last capture; beyond it every other one is dropped
 /// (the in-between frame is then the nearest kept one to the middle).
@@ -141,7 +150,7 @@ impl View {
         // (tests/closed_loop.rs measures both against the truth).
         if ds
             .iter()
-            .any(|&d| !d.is_nan() && d as f64 >= z - (0.02 * z + 0.05))
+            .any(|&d| !d.is_nan() && d as f64 >= z - seen_tolerance_m(z))
         {
             Sight::Seen
         } else {
@@ -212,7 +221,9 @@ pub fn pair(a: &View, b: &View) -> Pair {
     }
 }
 
-fn span(d: &mut [f64]) -> Option<f64> {
+/// The robust span of `d` ([`PARALLAX_PERCENTILES`]) by selection, O(n);
+/// `None` when empty. Reorders `d`.
+pub fn span(d: &mut [f64]) -> Option<f64> {
     if d.is_empty() {
         return None;
     }

@@ -3,6 +3,7 @@
 //! frames, poses and clocks are arguments, so the flight, `alfd sim` and the
 //! tests run the same decision code.
 
+use crate::capture::export::camera_to_body;
 use crate::capture::{
     image_file_name, Attitude, CameraIntrinsics, CaptureMode, CaptureRecord, ClosedLoopRecord,
     ImageFormat, Occlusion, Position, QualityRecord, Spacing,
@@ -145,7 +146,7 @@ impl Pipeline {
         // Scan along the image axis nearest the direction of flight, with the
         // camera's tilt along it (a belly camera tilts forward as the nose goes up).
         let cam_to_ned =
-            DMat3::from_quat(pose.q) * DMat3::from_rotation_y(self.params.camera_mount_pitch_rad);
+            DMat3::from_quat(pose.q) * camera_to_body(self.params.camera_mount_pitch_rad);
         let (axis, camera_pitch) = flight_axis(&cam_to_ned, pose.vel_ned_mps, self.fixed_axis);
         self.estimator.set_track_axis(axis);
         let estimate = match f.depth {

@@ -142,19 +142,7 @@ pub fn writer_thread(
             Err(mpsc::error::TryRecvError::Empty) => {
                 let frames = tlog.take(TLOG_BATCH);
                 if !frames.is_empty() {
-                    for f in frames {
-                        if tlog_failed {
-                            break;
-                        }
-                        let unix = unix_us_at(f.mono_ns).unwrap_or(0);
-                        match st.write(unix, &f.bytes) {
-                            Ok(()) => report.tlog_frames += 1,
-                            Err(e) => {
-                                tlog_failed = true;
-                                report.error(format!("telemetry.tlog: {e}"));
-                            }
-                        }
-                    }
+                    write_tlog(&mut st, frames, &mut report, &mut tlog_failed);
                     continue;
                 }
                 let ready = &tlog.ready;
@@ -238,17 +226,7 @@ pub fn writer_thread(
         if frames.is_empty() || tlog_failed {
             break;
         }
-        for f in frames {
-            let unix = unix_us_at(f.mono_ns).unwrap_or(0);
-            match st.write(unix, &f.bytes) {
-                Ok(()) => report.tlog_frames += 1,
-                Err(e) => {
-                    tlog_failed = true;
-                    report.error(format!("telemetry.tlog: {e}"));
-                    break;
-                }
-            }
-        }
+        write_tlog(&mut st, frames, &mut report, &mut tlog_failed);
     }
     if let Err(e) = st.sync() {
         report.error(format!("telemetry.tlog: {e}"));
@@ -268,4 +246,27 @@ pub fn writer_thread(
         Err(e) => report.error(format!("manifest: {e}")),
     }
     report
+}
+
+/// Appends telemetry frames to `telemetry.tlog` until a write fails; from then on the
+/// tlog is given up (the error said once) and frames are dropped.
+fn write_tlog(
+    st: &mut TlogWriter<BoxedStore>,
+    frames: Vec<TapFrame>,
+    report: &mut WriterReport,
+    failed: &mut bool,
+) {
+    for f in frames {
+        if *failed {
+            return;
+        }
+        let unix = unix_us_at(f.mono_ns).unwrap_or(0);
+        match st.write(unix, &f.bytes) {
+            Ok(()) => report.tlog_frames += 1,
+            Err(e) => {
+                *failed = true;
+                report.error(format!("telemetry.tlog: {e}"));
+            }
+        }
+    }
 }

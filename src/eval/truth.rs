@@ -46,16 +46,11 @@ pub const OUT_OF_BOTH: u8 = 3;
 pub const SKY: u8 = 4;
 pub const CLASS_NAMES: [&str; 3] = ["both", "one", "neither"];
 
-/// Robust range of the disparities, the percentiles of the estimator's
-/// inverse-depth range (so truth and prediction measure the same quantity).
-pub const PARALLAX_PERCENTILES: (f64, f64) = (0.005, 0.995);
-
-/// Depth agreement of a reprojected point with a capture's depth: the rule of
-/// the warping renderer (2 % + 5 cm).
-#[inline]
-fn tolerance_m(depth_m: f64) -> f64 {
-    0.02 * depth_m + 0.05
-}
+/// Robust range of the disparities and depth agreement of a reprojected
+/// point: the closed loop's (`core::closedloop`), so truth and prediction
+/// measure the same quantity.
+pub use crate::core::closedloop::PARALLAX_PERCENTILES;
+use crate::core::closedloop::{seen_tolerance_m as tolerance_m, span};
 
 /// Which captures see each pixel of an in-between view, and the parallax
 /// between the captures.
@@ -290,26 +285,11 @@ impl<'a> Truth<'a> {
                 counts[c as usize] += 1;
             }
         }
-        let span = if disparities.is_empty() {
-            None
-        } else {
-            // Order statistics by selection, O(n): this runs for every view
-            // of every sweep.
-            let n = disparities.len();
-            let (lo, hi) = (
-                ((n - 1) as f64 * PARALLAX_PERCENTILES.0).round() as usize,
-                ((n - 1) as f64 * PARALLAX_PERCENTILES.1).round() as usize,
-            );
-            let q_hi = *disparities.select_nth_unstable_by(hi, f64::total_cmp).1;
-            let q_lo = *disparities[..=hi]
-                .select_nth_unstable_by(lo.min(hi), f64::total_cmp)
-                .1;
-            Some(q_hi - q_lo)
-        };
         Classification {
             class,
             counts,
-            parallax_span_px: span,
+            // Selection, O(n): this runs for every view of every sweep.
+            parallax_span_px: span(&mut disparities),
             exact_tests,
         }
     }

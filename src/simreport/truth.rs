@@ -3,6 +3,7 @@
 //! estimating sequential.
 
 use super::{TrackSample, TruthPose};
+use crate::capture::export::body_to_ned;
 use crate::core::{DepthData, DepthImage, Estimator, EstimatorParams, Intrinsics};
 use crate::daemon::step::flight_axis;
 use crate::render::{render_depth, Camera};
@@ -54,11 +55,10 @@ pub fn truth_estimates(
     out
 }
 
-/// The camera's rotation, OpenCV axes → NED (the renderer's ZYX angles).
+/// The camera's rotation, OpenCV axes → NED: the renderer's ZYX angles, the
+/// exports' composition.
 fn cam_to_ned(c: &Camera) -> DMat3 {
-    DMat3::from_rotation_z(c.yaw_rad)
-        * DMat3::from_rotation_y(c.pitch_rad)
-        * DMat3::from_rotation_x(c.roll_rad)
+    body_to_ned(c.roll_rad, c.pitch_rad, c.yaw_rad)
 }
 
 fn camera(p: &TruthPose, intrinsics: Intrinsics) -> Camera {
