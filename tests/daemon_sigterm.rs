@@ -190,17 +190,27 @@ dir = {captures:?}
     assert_eq!(m.torn_tail_bytes, 0);
     assert!(m.bad_lines.is_empty());
     assert!(m.records.len() >= 10);
+    // Each line has its image, or was logged without it because the writer was behind its
+    // deadline (a storage stall on a shared disk); nothing else takes an image away.
+    let mut images = 0;
     for r in &m.records {
-        let name = r.image.as_ref().unwrap();
-        let bytes = std::fs::read(flight.join(name)).unwrap();
-        jpeg_decoder::Decoder::new(&bytes[..]).decode().unwrap();
+        match (&r.image, &r.image_missing) {
+            (Some(name), None) => {
+                let bytes = std::fs::read(flight.join(name)).unwrap();
+                jpeg_decoder::Decoder::new(&bytes[..]).decode().unwrap();
+                images += 1;
+            }
+            (None, Some(why)) => assert!(why.starts_with("writer behind"), "{}: {why}", r.seq),
+            other => panic!("capture {}: {other:?}", r.seq),
+        }
     }
-    // Exports written at the stop, from the whole manifest.
+    assert!(images > 0, "no capture has its image");
+    // Exports written at the stop, from the whole manifest: one entry per image.
     let geo = std::fs::read_to_string(flight.join("geo.txt")).unwrap();
-    assert_eq!(geo.lines().count(), m.records.len() + 1);
+    assert_eq!(geo.lines().count(), images + 1);
     let t: serde_json::Value =
         serde_json::from_slice(&std::fs::read(flight.join("transforms.json")).unwrap()).unwrap();
-    assert_eq!(t["frames"].as_array().unwrap().len(), m.records.len());
+    assert_eq!(t["frames"].as_array().unwrap().len(), images);
     // The telemetry log ends on a complete entry (synced at the stop).
     let bytes = std::fs::read(flight.join("telemetry.tlog")).unwrap();
     assert_eq!(tlog::complete_prefix_len(&bytes), bytes.len());

@@ -24,7 +24,13 @@ fn args(out: &Path, mode: CaptureMode) -> SimArgs {
     }
 }
 
+/// One sim at a time: each is a daemon and an autopilot on wall-clock time, and three on
+/// two cores starve each other's writer past its image deadline (what a drone, with one
+/// daemon, never sees; the overload itself is tests/daemon_overload.rs's to test).
+static ONE_AT_A_TIME: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
+
 async fn sim(mode: CaptureMode) -> (tempfile::TempDir, SimOutcome) {
+    let _turn = ONE_AT_A_TIME.lock().await;
     let dir = tempfile::tempdir().unwrap();
     let out = run_sim(args(dir.path(), mode), std::future::pending())
         .await
@@ -81,9 +87,41 @@ async fn frame_mode_logs_images_at_the_true_poses_with_valid_exports() {
     assert_eq!(m.torn_tail_bytes, 0);
     assert!(m.bad_lines.is_empty(), "{:?}", m.bad_lines);
     check_against_truth(&out, &m.records);
-    for r in &m.records {
+    // Every capture has its image, or was logged without it because the writer was behind
+    // its deadline (a storage stall: the manifest's fsync on this shared disk has taken
+    // 400 ms). Nothing else may take an image away, and a skip is never the end of images.
+    let skipped: Vec<u64> = m
+        .records
+        .iter()
+        .filter(|r| r.image.is_none())
+        .map(|r| {
+            let why = r.image_missing.as_deref().unwrap_or("no reason given");
+            assert!(
+                why.starts_with("writer behind"),
+                "capture {}: no image ({why})",
+                r.seq
+            );
+            r.seq
+        })
+        .collect();
+    if let Some(&first_skip) = skipped.first() {
+        assert!(
+            m.records
+                .iter()
+                .any(|r| r.seq > first_skip && r.image.is_some())
+                || first_skip == m.records.len() as u64,
+            "no image after capture {first_skip}: {skipped:?}"
+        );
+    }
+    eprintln!(
+        "frame mode: {} captures, skipped {skipped:?}",
+        m.records.len()
+    );
+    let with_image: Vec<&CaptureRecord> = m.records.iter().filter(|r| r.image.is_some()).collect();
+    assert!(!with_image.is_empty(), "frame mode saved no image");
+    for r in with_image.iter().copied() {
         assert_eq!(r.capture_mode, CaptureMode::Frame);
-        let name = r.image.as_ref().expect("frame mode saves an image");
+        let name = r.image.as_ref().unwrap();
         let bytes = std::fs::read(out.flight_dir.join(name)).unwrap();
         let app1 = alfd::capture::find_exif_app1(&bytes).expect("EXIF in every JPEG");
         let gps = parse_exif_gps(app1).unwrap();
@@ -94,7 +132,7 @@ async fn frame_mode_logs_images_at_the_true_poses_with_valid_exports() {
     }
     // exiftool reads the same position back from the daemon's JPEGs.
     if tools::exiftool("daemon_sim's exiftool read-back") {
-        let first = &m.records[0];
+        let first = with_image[0];
         let path = out.flight_dir.join(first.image.as_ref().unwrap());
         let o = std::process::Command::new("exiftool")
             .args(["-n", "-j", "-GPSLatitude", "-GPSLongitude", "-GPSAltitude"])
@@ -113,8 +151,8 @@ async fn frame_mode_logs_images_at_the_true_poses_with_valid_exports() {
     let mut lines = geo.lines();
     assert_eq!(lines.next(), Some("EPSG:4326"));
     let rows: Vec<Vec<&str>> = lines.map(|l| l.split_whitespace().collect()).collect();
-    assert_eq!(rows.len(), m.records.len());
-    for (row, r) in rows.iter().zip(&m.records) {
+    assert_eq!(rows.len(), with_image.len());
+    for (row, r) in rows.iter().zip(with_image.iter().copied()) {
         assert_eq!(Some(row[0]), r.image.as_deref());
         let lon: f64 = row[1].parse().unwrap();
         let lat: f64 = row[2].parse().unwrap();
@@ -126,8 +164,8 @@ async fn frame_mode_logs_images_at_the_true_poses_with_valid_exports() {
         serde_json::from_slice(&std::fs::read(out.flight_dir.join("transforms.json")).unwrap())
             .unwrap();
     let frames = t["frames"].as_array().unwrap();
-    assert_eq!(frames.len(), m.records.len());
-    for (f, r) in frames.iter().zip(&m.records) {
+    assert_eq!(frames.len(), with_image.len());
+    for (f, r) in frames.iter().zip(with_image.iter().copied()) {
         let mtx: Vec<Vec<f64>> = serde_json::from_value(f["transform_matrix"].clone()).unwrap();
         for i in 0..3 {
             for j in 0..3 {
