@@ -132,7 +132,31 @@ fn eval_writes_report_json_and_plots() {
             "the oracle needs at most fixed's {fixed}: {oracle}"
         );
     }
+    // The quality model at its own spacing, the others scaled to its count (issue 13).
+    let qe = v["tiny"]["quality_at_equal_captures"].as_array().unwrap();
+    let names: Vec<&str> = qe.iter().map(|e| e["method"].as_str().unwrap()).collect();
+    assert_eq!(names, ["quality", "mmds", "occlusion", "fixed"]);
+    let quality_caps = qe[0]["captures"].as_u64().unwrap();
+    assert!(quality_caps >= 2);
+    assert_eq!(qe[0]["scale"].as_f64(), Some(1.0));
+    for e in qe {
+        let c = e["captures"].as_u64().unwrap();
+        assert!(
+            c.abs_diff(quality_caps) <= 1,
+            "{}: {c} vs {quality_caps}",
+            e["method"]
+        );
+        let segs = e["segments"].as_array().unwrap();
+        assert_eq!(segs.len(), alfd::eval::SEGMENTS);
+        for s in segs {
+            let u = s["unseen_worst"].as_f64().unwrap();
+            assert!((0.0..=1.0).contains(&u), "{u}");
+            let p = s["psnr_db"]["warp"].as_f64();
+            assert!(p.is_none_or(|p| p > 10.0 && p <= 100.0), "{p:?}");
+        }
+    }
     for section in [
+        "The quality model at equal captures: the worst segment",
         "Empirical permissible spacing per segment",
         "What a target level costs",
         "Quality by pixel class",

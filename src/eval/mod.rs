@@ -318,6 +318,31 @@ impl GeoStats {
     }
 }
 
+/// The methods planned at the quality model's count, beside it.
+pub const EQUAL_TO_QUALITY: [Model; 3] = [Model::Mmds, Model::Occlusion, Model::Fixed];
+
+/// The runs at the quality model's count that `--colmap` also judges.
+const COLMAP_AT_QUALITY: [&str; 2] = ["quality", "mmds"];
+
+/// Their directory (and name in the COLMAP table): `quality`, `mmds@quality`.
+fn colmap_at_quality_dir(method: &str) -> String {
+    if method == "quality" {
+        method.to_string()
+    } else {
+        format!("{method}@quality")
+    }
+}
+
+/// One method at the quality model's count: the run and the fewest captures seeing a
+/// sampled point (as [`GuaranteeRun::min_views`]).
+#[derive(Debug, Clone)]
+pub struct EqualRun {
+    /// `quality` or a [`Model`]'s name.
+    pub method: &'static str,
+    pub run: MethodRun,
+    pub min_views: Option<usize>,
+}
+
 /// One method in one setting: its captures and scores.
 #[derive(Debug, Clone)]
 pub struct MethodRun {
@@ -426,6 +451,8 @@ pub struct SceneResult {
     pub guarantee: Guarantee,
     /// `[method][setting]`.
     pub runs: Vec<[MethodRun; 2]>,
+    /// The quality model at its own spacing, then [`EQUAL_TO_QUALITY`] scaled to its count.
+    pub quality_equal: Vec<EqualRun>,
     pub elapsed_s: f64,
     pub render_s: f64,
     /// `--colmap`: the judge's JSON per method at equal captures, or why not.
@@ -1192,15 +1219,16 @@ pub fn evaluate_scene(
         .flat_map(|s| s.intervals.iter().cloned())
         .collect();
     let line = (xs[0], xs[n - 1]);
+    // The quality model's spacing within the config limits: what the daemon triggers on.
+    let limits = EstimatorParams::default();
+    let visibility_spacing: Vec<Option<f64>> = estimates
+        .iter()
+        .map(|e| {
+            e.visibility_m
+                .map(|v| v.clamp(limits.spacing_min_m, limits.spacing_max_m))
+        })
+        .collect();
     let guarantee = if seg_targets.iter().all(|t| t.is_some()) {
-        let limits = EstimatorParams::default();
-        let visibility_spacing: Vec<Option<f64>> = estimates
-            .iter()
-            .map(|e| {
-                e.visibility_m
-                    .map(|v| v.clamp(limits.spacing_min_m, limits.spacing_max_m))
-            })
-            .collect();
         let methods = (0..4)
             .map(|m| {
                 let (name, sp) = if m < 3 {
@@ -1259,6 +1287,44 @@ pub fn evaluate_scene(
     } else {
         Guarantee::default()
     };
+    // The quality model at its own spacing, and the others scaled to its count (issue 13's
+    // equal-capture comparison): same scorer, so intervals already scored are reused.
+    pb.set_message(format!(
+        "{}: the quality model at equal captures",
+        scene.name
+    ));
+    let quality_own = plan::captures(&visibility_spacing, res.view_step_m, s.speed_mps, 1.0);
+    let quality_plans: Vec<(&'static str, f64, Vec<usize>)> =
+        std::iter::once(("quality", 1.0, quality_own.clone()))
+            .chain(EQUAL_TO_QUALITY.iter().map(|&m| {
+                let i = METHODS.iter().position(|&x| x == m).expect("a method");
+                let (scale, caps) = plan::scale_to_count(
+                    &spacing_of(i),
+                    res.view_step_m,
+                    s.speed_mps,
+                    quality_own.len(),
+                );
+                (m.as_str(), scale, caps)
+            }))
+            .collect();
+    let all: Vec<(usize, usize)> = quality_plans
+        .iter()
+        .flat_map(|p| p.2.windows(2).map(|w| (w[0], w[1])).collect::<Vec<_>>())
+        .collect();
+    scorer.ensure(&all, true);
+    let quality_equal: Vec<EqualRun> = quality_plans
+        .into_iter()
+        .map(|(method, scale, caps)| {
+            let caps_m: Vec<f64> = caps.iter().map(|&c| xs[c]).collect();
+            let min_views = min_views(&all_intervals, &caps_m, line, targets.views_per_point_min);
+            let scores = scorer.per_view(&caps, n, true);
+            EqualRun {
+                method,
+                run: summarise(scores, caps, scale, &segs),
+                min_views,
+            }
+        })
+        .collect();
     if let Some(dir) = colmap_dir {
         let occluded: Vec<[f64; 3]> = segments
             .iter()
@@ -1276,6 +1342,22 @@ pub fn evaluate_scene(
             )
             .map_err(|e| write_err(&d, e))?;
         }
+        // The quality model and MMDS at the quality model's count.
+        for e in quality_equal
+            .iter()
+            .filter(|e| COLMAP_AT_QUALITY.contains(&e.method))
+        {
+            let d = dir.join(colmap_at_quality_dir(e.method));
+            colmap::export(
+                &d,
+                &g,
+                (s.y_m, s.altitude_m),
+                &views,
+                &e.run.captures,
+                &occluded,
+            )
+            .map_err(|e| write_err(&d, e))?;
+        }
     }
     Ok(SceneResult {
         name: scene.name.clone(),
@@ -1288,6 +1370,7 @@ pub fn evaluate_scene(
         safe_spacing_m,
         guarantee,
         runs,
+        quality_equal,
         elapsed_s: start.elapsed().as_secs_f64(),
         render_s,
         colmap: Vec::new(),
@@ -1414,10 +1497,14 @@ pub fn run(opts: &EvalOptions) -> Result<PathBuf, EvalError> {
         let dir = opts.out_dir.join("colmap").join(&scene.name);
         let mut r = evaluate_scene(&scene, res, &pb, judged.map(|_| dir.as_path()))?;
         if let Some(script) = judged {
-            for model in METHODS {
-                pb.set_message(format!("{}: COLMAP on {}", scene.name, model.as_str()));
-                let v = colmap::judge(script, &dir.join(model.as_str()));
-                r.colmap.push((model.as_str().to_string(), v));
+            let names = METHODS
+                .iter()
+                .map(|m| m.as_str().to_string())
+                .chain(COLMAP_AT_QUALITY.iter().map(|m| colmap_at_quality_dir(m)));
+            for name in names {
+                pb.set_message(format!("{}: COLMAP on {name}", scene.name));
+                let v = colmap::judge(script, &dir.join(&name));
+                r.colmap.push((name, v));
             }
         }
         results.push(r);
