@@ -37,7 +37,20 @@ pub struct DepthSnapshot {
     pub depth_m: Vec<f32>,
 }
 
+/// Samples of a frame the closed loop keeps, about (a 640 × 480 frame every
+/// 8th pixel): its cost per frame is a few of these warps.
+pub const KEPT_SAMPLES: usize = 4800;
+
 impl DepthSnapshot {
+    /// The snapshot the closed loop keeps: about [`KEPT_SAMPLES`] samples.
+    pub fn kept(image: &DepthImage, intr: &Intrinsics) -> DepthSnapshot {
+        let step = ((image.pixel_count() as f64 / KEPT_SAMPLES as f64)
+            .sqrt()
+            .ceil() as usize)
+            .max(1);
+        DepthSnapshot::new(image, intr, step)
+    }
+
     pub fn new(image: &DepthImage, intr: &Intrinsics, step: usize) -> DepthSnapshot {
         let step = step.max(1);
         let (w, h) = (image.width(), image.height());

@@ -15,10 +15,6 @@ use crate::core::trigger::{Capture, Decision, Opportunity, Trigger, TriggerParam
 use crate::core::{DepthImage, Estimate, Estimator, EstimatorParams, Intrinsics, TrackAxis};
 use glam::{DMat3, DVec3, EulerRot};
 
-/// Samples of a frame the closed loop keeps, about (a 640 × 480 frame every
-/// 8th pixel): its cost per frame is a few of these warps.
-const CLOSED_LOOP_SAMPLES: usize = 4800;
-
 /// What the pipeline needs besides the estimator and trigger settings.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StepParams {
@@ -164,17 +160,11 @@ impl Pipeline {
         let next_step_m = speed * self.params.frame_period_s;
         // The closed loop: this frame against the last capture, in full 6-DoF.
         let view = match (&self.closed_loop, f.depth) {
-            (Some(_), Some(depth)) if estimate.is_ok() => {
-                let step = ((depth.pixel_count() as f64 / CLOSED_LOOP_SAMPLES as f64)
-                    .sqrt()
-                    .ceil() as usize)
-                    .max(1);
-                Some(View {
-                    depth: DepthSnapshot::new(depth, f.intrinsics, step),
-                    cam_to_ned,
-                    pos_ned_m: pose.pos_ned_m,
-                })
-            }
+            (Some(_), Some(depth)) if estimate.is_ok() => Some(View {
+                depth: DepthSnapshot::kept(depth, f.intrinsics),
+                cam_to_ned,
+                pos_ned_m: pose.pos_ned_m,
+            }),
             _ => None,
         };
         let q = self.estimator.params().quality;

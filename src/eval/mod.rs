@@ -13,6 +13,7 @@ mod report;
 mod tables;
 pub mod truth;
 
+use crate::core::closedloop;
 use crate::core::{Estimate, Estimator, EstimatorParams, Model};
 use crate::metrics::{psnr, ssim_map};
 use crate::render::{render, survey_camera, RenderOptions, SensorModel};
@@ -404,6 +405,14 @@ pub struct SegmentTruth {
     /// views, and the unseen fraction it predicts at the target spacing.
     pub visibility_predicted_m: Option<f64>,
     pub unseen_visibility_predicted: Option<f64>,
+    /// At the target spacing, the quality model's prediction of the worst interval's
+    /// parallax (px) and unseen fraction: open loop (worst over the segment's frames) and
+    /// closed loop (measured on the kept depth of each interval's captures and middle
+    /// frame, worst over the intervals), to hold against `parallax_truth_px`/`unseen_truth`.
+    pub parallax_open_px: Option<f64>,
+    pub unseen_open: Option<f64>,
+    pub parallax_closed_px: Option<f64>,
+    pub unseen_closed: Option<f64>,
 }
 
 /// The empirical permissible spacing of one segment.
@@ -844,6 +853,22 @@ pub fn evaluate_scene(
     let mut views = Vec::with_capacity(n);
     let mut estimates = Vec::with_capacity(n);
     let mut visibilities: Vec<Estimate> = Vec::with_capacity(n);
+    // The closed loop's view of each frame (`core::closedloop`: the sensor's depth, kept as
+    // the daemon keeps it), in the scene's world frame with OpenCV camera axes.
+    let mut kept: Vec<closedloop::View> = Vec::with_capacity(n);
+    let intr_g = crate::core::Intrinsics::from_focal_px(
+        g.width,
+        g.height,
+        g.focal_px,
+        Some((g.cx_px, g.cy_px)),
+    )
+    .expect("valid intrinsics");
+    let cam_to_world_cv = {
+        let m = colmap::camera_to_world(&g, [0.0; 3]);
+        let col = |j: usize| glam::DVec3::new(m[0][j], m[1][j], m[2][j]);
+        // OpenGL (x right, y up, z back) to OpenCV (x right, y down, z forward).
+        glam::DMat3::from_cols(col(0), -col(1), -col(2))
+    };
     let mut ests: Vec<Estimator> = METHODS
         .iter()
         .map(|&m| Estimator::new(method_params(m, 1.0)))
@@ -855,9 +880,15 @@ pub fn evaluate_scene(
             &survey_camera(scene, x, res.width, res.height),
             &opts,
         );
-        let (e, vis) = view_estimate(&mut ests, &frame.z16(&sensor), &g);
+        let z16 = frame.z16(&sensor);
+        let (e, vis) = view_estimate(&mut ests, &z16, &g);
         estimates.push(e);
         visibilities.push(vis);
+        kept.push(closedloop::View {
+            depth: closedloop::DepthSnapshot::kept(&z16, &intr_g),
+            cam_to_ned: cam_to_world_cv,
+            pos_ned_m: glam::DVec3::new(x, s.y_m, s.altitude_m),
+        });
         views.push(View {
             x_m: x,
             lum: frame.luminance(),
@@ -1073,6 +1104,7 @@ pub fn evaluate_scene(
         // be monotone there).
         let mut at_target: Option<GeoStats> = None;
         let mut target_m = None;
+        let mut target_k = None;
         if let (Some(p), Some(u)) = (ok_k[0], ok_k[1]) {
             let vpp_k = vpp_m.map_or(usize::MAX, |v| (v / step + 1e-9).floor() as usize);
             let mut k = p.min(u).min(vpp_k).min(b - a);
@@ -1081,13 +1113,49 @@ pub fn evaluate_scene(
                 if meets_c(&g, 0) && meets_c(&g, 1) {
                     at_target = Some(g);
                     target_m = Some(k as f64 * step);
+                    target_k = Some(k);
                     break;
                 }
                 k -= 1;
             }
         }
         let seg_est = &estimates[a..=b];
+        // At the target spacing, what the daemon would see of the worst interval: the open
+        // loop from each frame's depth (worst over the segment's frames), the closed loop
+        // from the captures' and the middle frame's kept depth (worst over the intervals).
+        let open_at = |f: fn(&crate::core::QualityPrediction) -> Option<f64>| {
+            target_m.and_then(|t| {
+                visibilities[a..=b]
+                    .iter()
+                    .filter_map(|v| v.predict_at(t).as_ref().and_then(f))
+                    .reduce(f64::max)
+            })
+        };
+        let (parallax_closed_px, unseen_closed) = match target_k {
+            Some(k) => {
+                let mut intervals: Vec<(usize, usize)> =
+                    tasks_at(k).iter().map(|&(i, j, _)| (i, j)).collect();
+                intervals.dedup();
+                let measured: Vec<(Option<f64>, f64)> = intervals
+                    .par_iter()
+                    .map(|&(i, j)| {
+                        let p = closedloop::pair(&kept[i], &kept[j]).parallax_span_px;
+                        let u = closedloop::unseen_fraction(&kept[(i + j) / 2], &kept[i], &kept[j]);
+                        (p, u)
+                    })
+                    .collect();
+                (
+                    measured.iter().filter_map(|m| m.0).reduce(f64::max),
+                    measured.iter().map(|m| m.1).reduce(f64::max),
+                )
+            }
+            None => (None, None),
+        };
         let seg_truth = SegmentTruth {
+            parallax_open_px: open_at(|p| p.parallax_px),
+            unseen_open: open_at(|p| p.unseen_fraction),
+            parallax_closed_px,
+            unseen_closed,
             target_m,
             target_at_least: !geo_failed[0]
                 && !geo_failed[1]

@@ -114,7 +114,8 @@ pub fn segments_json(results: &[SceneResult]) -> Value {
                 "predicted_m": Value::Object(pred),
                 "ln_error": {"occlusion": ln_err(0), "mmds": ln_err(1), "sspa": ln_err(2), "visibility": ln_err(3)},
                 "unseen_fraction": {"predicted": onum(t.unseen_predicted), "predicted_visibility": onum(t.unseen_visibility_predicted), "truth": onum(t.unseen_truth)},
-                "parallax_px": {"predicted": onum(t.parallax_predicted_px), "truth": onum(t.parallax_truth_px)},
+                "parallax_px": {"predicted": onum(t.parallax_predicted_px), "open_loop": onum(t.parallax_open_px), "closed_loop": onum(t.parallax_closed_px), "truth": onum(t.parallax_truth_px)},
+                "unseen_fraction_quality": {"open_loop": onum(t.unseen_open), "closed_loop": onum(t.unseen_closed), "truth": onum(t.unseen_truth)},
                 "visibility_interval_m": {"min": onum(t.interval_min_m), "p01": onum(t.interval_p01_m), "points": t.points},
                 "sweep": seg.sweep.iter().map(|p| json!({
                     "spacing_m": p.spacing_m,
@@ -321,6 +322,8 @@ pub fn markdown(results: &[SceneResult]) -> String {
         };
         let _ = writeln!(s, "| {} | {} | {} |", model, acc(true), acc(false));
     }
+
+    let _ = write!(s, "{}", geometry_accuracy(results));
 
     let _ = writeln!(s, "\n### The sweeps' geometry\n");
     let _ = writeln!(s, "Per segment and spacing (m): worst unseen fraction / worst parallax span (px) over the segment's in-between views.\n");
@@ -652,5 +655,114 @@ pub fn markdown(results: &[SceneResult]) -> String {
         }
     }
     s.push('\n');
+    s
+}
+
+/// Relative error of a prediction against the truth; `None` where the truth is below a tenth
+/// of the target (a relative error there measures nothing but the truth's smallness).
+fn relative_error(pred: Option<f64>, truth: Option<f64>, target: f64) -> Option<f64> {
+    match (pred, truth) {
+        (Some(p), Some(t)) if t >= 0.1 * target && p.is_finite() => Some((p - t).abs() / t),
+        _ => None,
+    }
+}
+
+/// Issue 13's geometry accuracy: at each segment's target spacing, the quality model's
+/// parallax and unseen fraction against the truth's worst interval, open loop and closed loop
+/// separately, median and worst relative error on held-in and held-out scenes.
+pub fn geometry_accuracy(results: &[SceneResult]) -> String {
+    let t = crate::eval::truth::DEFAULT_TARGETS;
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "\n### Geometry at the target spacing: the quality model against the truth\n"
+    );
+    let _ = writeln!(s, "At each segment's target spacing, the worst interval's parallax span (px) and unseen fraction by the truth against the quality model's: open loop (each frame's depth, `Estimate::predict_at`, worst over the segment's frames) and closed loop (`core::closedloop` on the kept sensor depth of the interval's two captures and middle frame, worst over the intervals). Relative error |pred − truth| / truth, median / worst (segments); segments whose truth is below a tenth of the target are left out of the ratio and counted, with the largest prediction there in units of the target (a prediction above 1 there would be a false alarm: a capture too early).\n");
+    let _ = writeln!(s, "| quantity | loop | held in: median / worst (n) | held out: median / worst (n) | truth < target/10: n, largest prediction / target |");
+    let _ = writeln!(s, "|---|---|---:|---:|---:|");
+    type Pick = fn(&crate::eval::SegmentTruth) -> (Option<f64>, Option<f64>);
+    let rows: [(&str, &str, f64, Pick); 4] = [
+        ("parallax", "open", t.parallax_px, |x| {
+            (x.parallax_open_px, x.parallax_truth_px)
+        }),
+        ("parallax", "closed", t.parallax_px, |x| {
+            (x.parallax_closed_px, x.parallax_truth_px)
+        }),
+        ("unseen fraction", "open", t.unseen_fraction_max, |x| {
+            (x.unseen_open, x.unseen_truth)
+        }),
+        ("unseen fraction", "closed", t.unseen_fraction_max, |x| {
+            (x.unseen_closed, x.unseen_truth)
+        }),
+    ];
+    for (name, lp, target, pick) in rows {
+        let cell = |inside: bool| {
+            let mut v: Vec<f64> = results
+                .iter()
+                .filter(|r| CALIBRATION_FIT.contains(&r.name.as_str()) == inside)
+                .flat_map(|r| r.segments.iter())
+                .filter_map(|seg| {
+                    let (p, tr) = pick(&seg.truth);
+                    relative_error(p, tr, target)
+                })
+                .collect();
+            if v.is_empty() {
+                return "–".to_string();
+            }
+            v.sort_by(f64::total_cmp);
+            format!(
+                "{:.1} % / {:.1} % ({})",
+                100.0 * v[v.len() / 2],
+                100.0 * v[v.len() - 1],
+                v.len()
+            )
+        };
+        let small: Vec<f64> = results
+            .iter()
+            .flat_map(|r| r.segments.iter())
+            .filter_map(|seg| {
+                let (p, tr) = pick(&seg.truth);
+                match tr {
+                    Some(tr) if tr < 0.1 * target => Some(p.unwrap_or(0.0) / target),
+                    _ => None,
+                }
+            })
+            .collect();
+        let _ = writeln!(
+            s,
+            "| {name} | {lp} | {} | {} | {}, {} |",
+            cell(true),
+            cell(false),
+            small.len(),
+            small
+                .iter()
+                .copied()
+                .reduce(f64::max)
+                .map_or("–".into(), |m| format!("{m:.2}"))
+        );
+    }
+    let _ = writeln!(
+        s,
+        "\nPer segment (pred open / closed / truth): parallax px; unseen fraction.\n"
+    );
+    for r in results {
+        for seg in &r.segments {
+            let x = &seg.truth;
+            let _ = writeln!(
+                s,
+                "- {} {:.1} – {:.1} m (target {}): parallax {} / {} / {}; unseen {} / {} / {}",
+                r.name,
+                seg.x0_m,
+                seg.x1_m,
+                f(x.target_m, 2),
+                f(x.parallax_open_px, 2),
+                f(x.parallax_closed_px, 2),
+                f(x.parallax_truth_px, 2),
+                f(x.unseen_open, 4),
+                f(x.unseen_closed, 4),
+                f(x.unseen_truth, 4),
+            );
+        }
+    }
     s
 }
