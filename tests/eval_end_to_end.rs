@@ -104,6 +104,21 @@ fn eval_writes_report_json_and_plots() {
             let p = &seg["predicted_m"][m];
             assert!(p.is_null() || p.as_f64().unwrap() > 0.0, "{m}: {p}");
         }
+        // At the target spacing, the quality model's open and closed loop beside the truth.
+        let par = &seg["parallax_px"];
+        if target.is_some() && !par["truth"].is_null() {
+            for k in ["open_loop", "closed_loop"] {
+                let p = par[k].as_f64().unwrap_or_else(|| panic!("{k}: {par}"));
+                assert!(p.is_finite() && p >= 0.0, "{k}: {p}");
+            }
+        }
+        for k in ["open_loop", "closed_loop", "truth"] {
+            let u = &seg["unseen_fraction_quality"][k];
+            assert!(
+                u.is_null() || (0.0..=1.0).contains(&u.as_f64().unwrap()),
+                "{k}: {u}"
+            );
+        }
         for k in ["predicted", "truth"] {
             let u = &seg["unseen_fraction"][k];
             assert!(
@@ -156,6 +171,7 @@ fn eval_writes_report_json_and_plots() {
         }
     }
     for section in [
+        "Geometry at the target spacing: the quality model against the truth",
         "The quality model at equal captures: the worst segment",
         "Empirical permissible spacing per segment",
         "What a target level costs",
