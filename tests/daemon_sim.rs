@@ -117,6 +117,13 @@ async fn frame_mode_logs_images_at_the_true_poses_with_valid_exports() {
         "frame mode: {} captures, skipped {skipped:?}",
         m.records.len()
     );
+    // Every capture was answered, and where its time went is reported (issue 14's figure:
+    // `cargo test --test daemon_sim frame_mode -- --nocapture`).
+    let latency = out.report.latency.as_ref().expect("answered captures");
+    assert_eq!(latency.captures as usize, m.records.len());
+    let phases: f64 = latency.phases.iter().map(|p| p.worst_ms).sum();
+    assert!(latency.total.worst_ms <= phases + 1e-9);
+    eprintln!("FIGURE nominal load: {latency}");
     let with_image: Vec<&CaptureRecord> = m.records.iter().filter(|r| r.image.is_some()).collect();
     assert!(!with_image.is_empty(), "frame mode saved no image");
     for r in with_image.iter().copied() {

@@ -108,6 +108,8 @@ struct Interval {
 /// Counters the run's report takes over at the end.
 #[derive(Debug, Default, Clone)]
 pub struct CoordinatorReport {
+    /// Where each answered capture's time went (filled by the outbox, which holds the clock).
+    pub latency: super::latency::LatencyLog,
     pub captures_decided: u64,
     pub command_captures: u64,
     pub camera_commands: u64,

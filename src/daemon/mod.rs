@@ -7,6 +7,7 @@ pub mod camera;
 pub mod coordinator;
 pub mod devices;
 pub mod estimator_task;
+pub mod latency;
 pub mod outbox;
 pub mod run;
 pub mod shutdown;

@@ -6,6 +6,7 @@
 use super::camera::StorageState;
 use super::coordinator::{Action, Coordinator, Located, Now};
 use super::estimator_task::Counters;
+use super::latency::CaptureStamps;
 use super::run::unix_us_at;
 use super::writer::{Space, WriteJob, Written};
 use crate::capture::CaptureRecord;
@@ -56,6 +57,7 @@ impl Outbox {
                 Action::Write(record) => {
                     let job = WriteJob {
                         deadline_ns: record.mono_ns + IMAGE_BUDGET_NS,
+                        queued_ns: mono_ns(),
                         record,
                     };
                     if let Some(refused) = self.queue(job) {
@@ -121,6 +123,11 @@ pub async fn reserve(tx: Option<&mpsc::Sender<WriteJob>>) -> Option<mpsc::Permit
 }
 
 pub fn written(co: &mut Coordinator, w: Written) -> Vec<Action> {
+    // Its CAMERA_IMAGE_CAPTURED goes to the link as the caller performs these actions.
+    co.report.latency.record(&CaptureStamps {
+        answered_ns: mono_ns(),
+        ..w.stamps
+    });
     let missing = w.record.image_missing.clone();
     co.on_capture_written(&w.record, w.result, missing.as_deref())
 }

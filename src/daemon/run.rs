@@ -130,6 +130,8 @@ pub struct RunReport {
     /// From the shutdown (or the end of the depth source) to everything logged, said and
     /// stopped (monotonic ns).
     pub shutdown_ns: u64,
+    /// From each capture's instant to its CAMERA_IMAGE_CAPTURED, by phase.
+    pub latency: Option<super::latency::LatencySummary>,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -426,12 +428,16 @@ pub async fn run(
     if let Some(e) = source_error {
         return Err(RunError::Source(e));
     }
-    Ok(RunReport {
+    let report = RunReport {
         flight_dir: options.flight_dir.clone(),
         tlog_frames_dropped: tlog.dropped(),
         shutdown_ns: mono_ns().saturating_sub(stop_began_ns),
         ..report(co, est_report, &counters, &link, wreport)
-    })
+    };
+    if let Some(l) = &report.latency {
+        tracing::info!("{l}");
+    }
+    Ok(report)
 }
 
 /// The run's counters from the parts that kept them.
@@ -468,6 +474,7 @@ fn report(
         estimator_busy_ns: est.busy_ns,
         command_captures: c.command_captures,
         captures_failed: c.captures_failed,
+        latency: c.latency.summary(),
         ..RunReport::default()
     }
 }

@@ -4,6 +4,7 @@
 //! has its own queue that drops its oldest frame (counted) when full, so a telemetry burst
 //! never delays a capture and a slow store never blocks the link.
 
+use super::latency::CaptureStamps;
 use super::run::{unix_us_at, BoxedStore};
 use crate::capture::{
     encode_capture, log_capture, parse_manifest, write_exports, CaptureRecord, ExifGps,
@@ -33,12 +34,16 @@ const TLOG_BATCH: usize = 256;
 pub struct WriteJob {
     pub record: Box<CaptureRecord>,
     pub deadline_ns: u64,
+    /// When it went into the queue (monotonic ns), for [`super::latency`].
+    pub queued_ns: u64,
 }
 
 /// The writer's answer: the record as logged (`image_missing` says why it has no image).
 pub struct Written {
     pub record: Box<CaptureRecord>,
     pub result: Result<(), String>,
+    /// Its stamps up to the end of the write (`answered_ns` is the outbox's).
+    pub stamps: CaptureStamps,
 }
 
 /// The tlog's queue: bounded, dropping the oldest frame when full.
@@ -159,6 +164,7 @@ pub fn writer_thread(
         let Some(WriteJob {
             mut record,
             deadline_ns,
+            queued_ns,
         }) = job
         else {
             continue;
@@ -213,7 +219,21 @@ pub fn writer_thread(
             report.error(error.clone());
             error
         });
-        if written.blocking_send(Written { record, result }).is_err() {
+        let stamps = CaptureStamps {
+            instant_ns: record.mono_ns,
+            queued_ns,
+            started_ns: started,
+            finished_ns: mono_ns(),
+            answered_ns: 0,
+        };
+        if written
+            .blocking_send(Written {
+                record,
+                result,
+                stamps,
+            })
+            .is_err()
+        {
             tracing::warn!("capture {seq}: the coordinator is gone");
         }
     }
