@@ -337,7 +337,7 @@ mod tests {
                 skipped += 1;
             }
         }
-        assert!(skipped >= 1 && skipped <= 4, "{skipped} skipped");
+        assert!((1..=4).contains(&skipped), "{skipped} skipped");
         assert_eq!(made + skipped, 40);
     }
 
