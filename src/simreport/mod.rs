@@ -21,7 +21,13 @@
 //!   and `b` (1 µm inside each end: the captures were consecutive
 //!   opportunities), or when `b − a ≤ step_limit_m` (at most one opportunity
 //!   step apart, for truth sampled more sparsely than the daemon's frames; pass
-//!   0 for the first rule alone). Avoidable = violations − unavoidable.
+//!   0 for the first rule alone). It is **at first sight** when the interval
+//!   is feasible against every truth sample more than `step_limit_m` before
+//!   `b`: only the frame that closed it (the one the trigger captured at)
+//!   showed the tighter spacing, so no trigger that acts on what it has seen
+//!   could have closed it earlier (a gap or a wall entering the view; the
+//!   ideal count, which knows the whole track, can). Avoidable = violations −
+//!   unavoidable − at first sight.
 //! - **Ideal count**: the fewest captures among the truth samples from the
 //!   sample nearest the first capture to the sample nearest the last capture,
 //!   every interval feasible, except that a step to the very next sample is

@@ -34,6 +34,8 @@ pub struct Summary {
     pub ratio_to_ideal: Option<f64>,
     pub violations: usize,
     pub unavoidable_violations: usize,
+    /// Violations only the closing frame's spacing makes (module doc).
+    pub first_sight_violations: usize,
     pub avoidable_violations: usize,
     /// Largest `interval / minimum spacing in force` among the violations.
     pub worst_excess_ratio: Option<f64>,
@@ -236,6 +238,7 @@ pub fn summarize(
         ratio_to_ideal: None,
         violations: 0,
         unavoidable_violations: 0,
+        first_sight_violations: 0,
         avoidable_violations: 0,
         worst_excess_ratio: None,
         worst_avoidable_excess_ratio: None,
@@ -270,8 +273,16 @@ pub fn summarize(
         }
         s.violations += 1;
         s.worst_excess_ratio = max_opt(s.worst_excess_ratio, ratio);
+        let before = within(&pts, a, b - step_limit_m - EPS_M);
+        let seen_before = pts[before.clone()]
+            .iter()
+            .filter(|p| p.along_m < b - step_limit_m - EPS_M)
+            .map(|p| p.spacing_m)
+            .reduce(f64::min);
         if strictly_between(&pts, a, b) == 0 || d <= step_limit_m {
             s.unavoidable_violations += 1;
+        } else if seen_before.is_some_and(|m| feasible(d, m)) {
+            s.first_sight_violations += 1;
         } else {
             s.avoidable_violations += 1;
             s.worst_avoidable_excess_ratio = max_opt(s.worst_avoidable_excess_ratio, ratio);
@@ -416,10 +427,11 @@ impl Summary {
                 opt(self.ratio_to_ideal, 3)
             ),
             format!(
-                "{:<16}{} ({} unavoidable, {} avoidable){worst}",
+                "{:<16}{} ({} unavoidable, {} at first sight, {} avoidable){worst}",
                 "violations",
                 self.violations,
                 self.unavoidable_violations,
+                self.first_sight_violations,
                 self.avoidable_violations
             ),
             format!(
@@ -505,9 +517,10 @@ impl Summary {
                 "0 avoidable violations".to_string(),
                 self.avoidable_violations == 0,
                 format!(
-                    "{} avoidable spacing violations ({} unavoidable){}",
+                    "{} avoidable spacing violations ({} unavoidable, {} at first sight){}",
                     self.avoidable_violations,
                     self.unavoidable_violations,
+                    self.first_sight_violations,
                     self.worst_avoidable_excess_ratio
                         .map_or(String::new(), |r| format!(", worst {r:.3}x"))
                 ),
@@ -689,6 +702,40 @@ mod tests {
         assert_eq!(s.fixed_captures, Some(21));
         let r = s.spacing_m.unwrap();
         assert_eq!((r.min_m, r.median_m, r.max_m), (0.5, 1.0, 1.0));
+    }
+
+    #[test]
+    fn a_drop_shown_first_by_the_closing_frame_is_at_first_sight_a_later_one_avoidable() {
+        let t = track(|x| Some(if x < 5.0 - 1e-9 { 1.0 } else { 0.3 }));
+        let at = |xs: &[f64]| -> Vec<CaptureAt> {
+            xs.iter()
+                .enumerate()
+                .map(|(i, &x)| capture(i as u64 + 1, x))
+                .collect()
+        };
+        // Captured at the frame that first shows 0.3 m: [4, 5] spans only it.
+        let s = summarize(&t, &at(&[0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 5.3, 5.6]), 1.0, 0.0);
+        assert_eq!(s.violations, 1);
+        assert_eq!(s.first_sight_violations, 1);
+        assert_eq!(s.avoidable_violations, 0);
+        assert!(s.targets()[0].1);
+        assert!(s.render_text().contains("1 at first sight, 0 avoidable"));
+        // A frame late: 5.0 showed 0.3 m before the capture at 5.1 closed [4, 5.1].
+        let s = summarize(&t, &at(&[0.0, 1.0, 2.0, 3.0, 4.0, 5.1, 5.4]), 1.0, 0.0);
+        assert_eq!(s.violations, 1);
+        assert_eq!(s.first_sight_violations, 0);
+        assert_eq!(s.avoidable_violations, 1);
+        // The dip below: [3, 4] is at first sight, [4, 5] and [5, 6] are not.
+        let dip = track(|x| Some(if (4.0..=5.0).contains(&x) { 0.5 } else { 1.0 }));
+        let s = summarize(&dip, &every(10, 100), 1.0, 0.0);
+        assert_eq!(
+            (
+                s.violations,
+                s.first_sight_violations,
+                s.avoidable_violations
+            ),
+            (3, 1, 2)
+        );
     }
 
     #[test]
