@@ -224,6 +224,8 @@ fn sweep(
     fn not_above(p: (f64, f64), a: (f64, f64), b: (f64, f64)) -> bool {
         (a.1 - p.1) * (b.0 - p.0) <= (b.1 - p.1) * (a.0 - p.0)
     }
+    // The highest `Y` of the points beyond `p` (all swept so far).
+    let mut y_beyond = f64::NEG_INFINITY;
     for k in 0..n {
         let i = if behind { k } else { n - 1 - k };
         let p = (sign * pts[i].0, pts[i].1);
@@ -237,6 +239,14 @@ fn sweep(
             }
         }
         let pl = (p.0, p.1 * (1.0 + margin));
+        if pl.1 >= y_beyond {
+            // Nothing beyond rises above the lifted point, so no tangent has
+            // `dy > 0` and this side stays open (open ground, roofs): the
+            // walk below would find the same.
+            stack.push(p);
+            y_beyond = y_beyond.max(p.1);
+            continue;
+        }
         let tangent = if margin > 0.0 && stack.len() >= 2 {
             // From the lifted point the tangent lies at or beyond the top:
             // slopes along the chain rise, then fall. A small lift moves it a
@@ -270,6 +280,7 @@ fn sweep(
             }
         }
         stack.push(p);
+        y_beyond = y_beyond.max(p.1);
     }
 }
 
@@ -691,6 +702,41 @@ mod tests {
                     };
                     let brute = others
                         .into_iter()
+                        .filter(|&q| y[q] > yl)
+                        .map(|q| (x[q] - x[i]).abs() / (y[q] - yl))
+                        .fold(f64::INFINITY, f64::min);
+                    assert!(
+                        (out[i] - brute).abs() <= 1e-12 * brute.abs().max(1.0)
+                            || (out[i].is_infinite() && brute.is_infinite()),
+                        "margin {margin} behind {behind} point {i}: sweep {} brute {brute}",
+                        out[i]
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn open_ground_exit_matches_brute_force() {
+        // Flat ground with depth noise under the margin, a block and a post:
+        // most points take the early exit (nothing beyond rises above them).
+        let x: Vec<f64> = (0..60).map(|i| i as f64 * 0.21 - 3.0).collect();
+        let y: Vec<f64> = (0..60)
+            .map(|i| match i {
+                12..=15 => 1.6,
+                41 => 1.3,
+                _ => 1.0 + ((i * 7919) % 7) as f64 * 1e-4,
+            })
+            .collect();
+        let pts: Vec<(f64, f64)> = x.iter().copied().zip(y.iter().copied()).collect();
+        for margin in [0.0, 1e-4, 1e-3, 0.5] {
+            for behind in [false, true] {
+                let mut out = Vec::new();
+                sweep(&pts, behind, margin, &mut Vec::new(), &mut out);
+                for i in 0..x.len() {
+                    let yl = y[i] * (1.0 + margin);
+                    let others = if behind { 0..i } else { i + 1..x.len() };
+                    let brute = others
                         .filter(|&q| y[q] > yl)
                         .map(|q| (x[q] - x[i]).abs() / (y[q] - yl))
                         .fold(f64::INFINITY, f64::min);
