@@ -4,7 +4,7 @@
 //! ratio to that baseline, since this machine is shared and noisy.
 
 use alfd::core::estimate::{disparity_span_per_m, visibility_step, Estimator};
-use alfd::core::inverse::{fill_grid, percentile_ranks, InvGrid, Selector};
+use alfd::core::inverse::{fill_grid, fill_grid_counted, percentile_ranks, InvGrid, Selector};
 use alfd::core::occlusion::{scan, BoundaryParams};
 use alfd::core::plane;
 use alfd::core::score;
@@ -109,6 +109,26 @@ fn bench(c: &mut Criterion) {
         let n = (grid.valid - grid.sky) as u64;
         g.bench_function("stage_percentiles", |b| {
             b.iter(|| sel.select2(black_box(&grid.w), false, percentile_ranks(n, 0.005, 0.995)))
+        });
+        // What the estimator runs on a Z16 frame: the inverse depth with the
+        // Z16 values counted in the same pass, then the percentiles from the count.
+        let mut counted = InvGrid::default();
+        g.bench_function("stage_inverse_depth_counted", |b| {
+            b.iter(|| {
+                fill_grid_counted(
+                    black_box(&img),
+                    params.track_axis,
+                    1,
+                    &params.depth_range,
+                    &mut counted,
+                )
+            })
+        });
+        fill_grid_counted(&img, params.track_axis, 1, &params.depth_range, &mut counted);
+        g.bench_function("stage_percentiles_from_count", |b| {
+            b.iter(|| {
+                black_box(&counted).select2(&mut sel, false, percentile_ranks(n, 0.005, 0.995))
+            })
         });
         let bp = BoundaryParams {
             tau_abs_per_m: params.tau_abs_per_m,
