@@ -1,4 +1,4 @@
-//! The estimator at 640×480 and 1280×720 Z16: the full estimate, each stage,
+//! The estimator at 640×480, 848×480 and 1280×720 Z16: the full estimate, each stage,
 //! and a baseline measured in the same run that only reads the frame once (the
 //! sum of its u16 values). `scripts/bench-ratios.py` prints every figure as a
 //! ratio to that baseline, since this machine is shared and noisy.
@@ -38,7 +38,8 @@ fn frame(w: usize, h: usize) -> (DepthImage, Intrinsics, f64) {
 }
 
 fn bench(c: &mut Criterion) {
-    for (w, h) in [(640usize, 480usize), (1280, 720)] {
+    // 848×480: the RealSense D4xx's native depth mode (docs/performance.md).
+    for (w, h) in [(640usize, 480usize), (848, 480), (1280, 720)] {
         let (img, intr, pitch) = frame(w, h);
         let DepthData::Z16 { data, .. } = img.data() else {
             unreachable!()
@@ -124,7 +125,13 @@ fn bench(c: &mut Criterion) {
                 )
             })
         });
-        fill_grid_counted(&img, params.track_axis, 1, &params.depth_range, &mut counted);
+        fill_grid_counted(
+            &img,
+            params.track_axis,
+            1,
+            &params.depth_range,
+            &mut counted,
+        );
         g.bench_function("stage_percentiles_from_count", |b| {
             b.iter(|| {
                 black_box(&counted).select2(&mut sel, false, percentile_ranks(n, 0.005, 0.995))
@@ -171,7 +178,13 @@ fn bench(c: &mut Criterion) {
                 )
             })
         });
-        fill_grid(&img, params.track_axis, vstep, &params.depth_range, &mut vgrid);
+        fill_grid(
+            &img,
+            params.track_axis,
+            vstep,
+            &params.depth_range,
+            &mut vgrid,
+        );
         let vp = VisibilityParams {
             unseen_fraction_max: params.quality.unseen_fraction_max,
             views_per_point_min: params.quality.views_per_point_min,

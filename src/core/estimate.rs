@@ -3,9 +3,7 @@
 //! terms the scene and the model need are computed, and the result says which.
 
 use super::depth::{DepthImage, Intrinsics};
-use super::inverse::{
-    fill_grid, fill_grid_counted, percentile_ranks, InvGrid, Selector, INVALID,
-};
+use super::inverse::{fill_grid, fill_grid_counted, percentile_ranks, InvGrid, Selector, INVALID};
 use super::occlusion::{scan, BoundaryParams, BoundaryStats};
 use super::params::{Decimation, EstimatorParams, GainModel, Model, Quality};
 use super::plane::{fit, PlaneFit};
@@ -479,10 +477,7 @@ impl Estimator {
         let mut parallax_per_m: Option<f64> = None;
         if n_range > 0 {
             let ranks = percentile_ranks(n_range, p.percentile_low, p.percentile_high);
-            if let Some([lo, hi]) = self
-                .grid
-                .select2(&mut self.selector, p.sky_is_scene, ranks)
-            {
+            if let Some([lo, hi]) = self.grid.select2(&mut self.selector, p.sky_is_scene, ranks) {
                 let (lo, hi) = (lo as f64, hi as f64);
                 est.inv_depth = Some(InvDepth {
                     min_per_m: lo,

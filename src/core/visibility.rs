@@ -226,14 +226,20 @@ fn sweep(
     }
     // The highest `Y` of the points beyond `p` (all swept so far).
     let mut y_beyond = f64::NEG_INFINITY;
+    // The top of the stack, also kept here: reading back the point pushed one
+    // iteration before (two 8-byte stores, one 16-byte load) stalls on store
+    // forwarding, which was the sweep's largest cost.
+    let mut last = (0.0, 0.0);
     for k in 0..n {
         let i = if behind { k } else { n - 1 - k };
         let p = (sign * pts[i].0, pts[i].1);
         // The hull of the points beyond `p`, seen from `p`: what lies on or
         // under the chord from `p` to the next vertex is no one's tangent.
-        while let [.., b, a] = stack[..] {
-            if not_above(p, a, b) {
+        while stack.len() >= 2 {
+            let b = stack[stack.len() - 2];
+            if not_above(p, last, b) {
                 stack.pop();
+                last = b;
             } else {
                 break;
             }
@@ -244,6 +250,7 @@ fn sweep(
             // `dy > 0` and this side stays open (open ground, roofs): the
             // walk below would find the same.
             stack.push(p);
+            last = p;
             y_beyond = y_beyond.max(p.1);
             continue;
         }
@@ -253,7 +260,7 @@ fn sweep(
             // vertex or two: walk a few, then bisect the rest.
             // Chain order: c = 0 is the top (nearest), stack index len−1−c.
             let top = stack.len() - 1;
-            let at = |c: usize| stack[top - c];
+            let at = |c: usize| if c == 0 { last } else { stack[top - c] };
             let mut lo = 0usize;
             while lo < top.min(4) && !not_above(pl, at(lo + 1), at(lo)) {
                 lo += 1;
@@ -271,7 +278,7 @@ fn sweep(
             }
             Some(at(lo))
         } else {
-            stack.last().copied()
+            (!stack.is_empty()).then_some(last)
         };
         if let Some(q) = tangent {
             let dy = q.1 - pl.1;
@@ -280,6 +287,7 @@ fn sweep(
             }
         }
         stack.push(p);
+        last = p;
         y_beyond = y_beyond.max(p.1);
     }
 }
