@@ -525,19 +525,35 @@ fn unseen_spacing(records: &[(f32, f32)], k_max: usize, phases: usize) -> Option
     }
     let mut best = f64::INFINITY;
     let mut buf: Vec<f64> = Vec::new();
+    // The records that can still count: an interval of length `L` has
+    // `onset ≥ L` at every phase, so once a phase has set `best`, those with
+    // `L ≥ best` never count again. The relative 1e-9 covers the rounding of
+    // `L` and of the onsets (a few 1e-16), so the counts are the same.
+    let mut live: Vec<(f32, f32)> = Vec::new();
+    let mut filtered = false;
     for i in order {
         let k = Phase::new(i as f64 / (p + 1) as f64);
         let onset = |&(a, b): &(f32, f32)| k.onset_m(a as f64, b as f64);
+        let set: &[(f32, f32)] = if filtered { &live } else { records };
         // Counted first (branch-free): most phases do not beat the best.
-        let n = records
+        let n = set
             .iter()
             .map(|r| (onset(r) < best) as usize)
             .sum::<usize>();
         if n > k_max {
             buf.clear();
-            buf.extend(records.iter().map(onset).filter(|&o| o < best));
+            buf.extend(set.iter().map(onset).filter(|&o| o < best));
             let (_, v, _) = buf.select_nth_unstable_by(k_max, f64::total_cmp);
             best = best.min(*v);
+            let keep = best * (1.0 + 1e-9);
+            // `!(L >= keep)` keeps a NaN record, as the count would see it.
+            let short = |&(a, b): &(f32, f32)| !((b as f64 - a as f64) >= keep);
+            if filtered {
+                live.retain(short);
+            } else if best.is_finite() {
+                live = records.iter().copied().filter(short).collect();
+                filtered = true;
+            }
         }
     }
     best.is_finite().then_some(best)
@@ -753,6 +769,53 @@ mod tests {
                             || (out[i].is_infinite() && brute.is_infinite()),
                         "margin {margin} behind {behind} point {i}: sweep {} brute {brute}",
                         out[i]
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn unseen_spacing_equals_every_phase_sorted() {
+        // Intervals of all lengths, some open at one end (the frustum never
+        // loses the point): the pruned search against a sort of every phase.
+        let mut s = 99u64;
+        let mut next = || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (s >> 40) as f32 / (1u64 << 24) as f32
+        };
+        for n in [1usize, 2, 7, 50, 400] {
+            let recs: Vec<(f32, f32)> = (0..n)
+                .map(|i| {
+                    let (a, b) = (-next() * 30.0, next() * 30.0);
+                    match i % 11 {
+                        3 => (f32::NEG_INFINITY, b),
+                        7 => (a, f32::INFINITY),
+                        _ => (a, b),
+                    }
+                })
+                .collect();
+            for phases in [1usize, 2, 15] {
+                for k_max in [0usize, 1, 3, n / 2, n] {
+                    let p = phases;
+                    let want = (1..=p)
+                        .filter_map(|i| {
+                            let k = Phase::new(i as f64 / (p + 1) as f64);
+                            let mut o: Vec<f64> = recs
+                                .iter()
+                                .map(|&(a, b)| k.onset_m(a as f64, b as f64))
+                                .collect();
+                            o.sort_by(f64::total_cmp);
+                            o.get(k_max).copied()
+                        })
+                        .fold(f64::INFINITY, f64::min);
+                    let want = want.is_finite().then_some(want);
+                    assert_eq!(
+                        unseen_spacing(&recs, k_max, phases),
+                        want,
+                        "n {n} phases {phases} k_max {k_max}"
                     );
                 }
             }
