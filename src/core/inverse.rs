@@ -296,7 +296,7 @@ fn z16_table(scale_m: f64, range: &DepthRange) -> (Vec<f32>, Option<(usize, usiz
         })
         .collect();
     let valid = (lo <= hi)
-        .then(|| (lo as usize, hi as usize))
+        .then_some((lo as usize, hi as usize))
         .filter(|&(l, h)| table[l..=h].iter().all(|&w| w > 0.0 && w.is_finite()));
     (table, valid)
 }

@@ -546,8 +546,11 @@ fn unseen_spacing(records: &[(f32, f32)], k_max: usize, phases: usize) -> Option
             let (_, v, _) = buf.select_nth_unstable_by(k_max, f64::total_cmp);
             best = best.min(*v);
             let keep = best * (1.0 + 1e-9);
-            // `!(L >= keep)` keeps a NaN record, as the count would see it.
-            let short = |&(a, b): &(f32, f32)| !((b as f64 - a as f64) >= keep);
+            // A NaN length stays, as the count would see its record.
+            let short = |&(a, b): &(f32, f32)| {
+                let l = b as f64 - a as f64;
+                l < keep || l.is_nan()
+            };
             if filtered {
                 live.retain(short);
             } else if best.is_finite() {
