@@ -1,13 +1,14 @@
-//! The estimator at 640×480 and 1280×720 Z16: the full estimate, each stage,
+//! The estimator at 640×480, 848×480 and 1280×720 Z16: the full estimate, each stage,
 //! and a baseline measured in the same run that only reads the frame once (the
 //! sum of its u16 values). `scripts/bench-ratios.py` prints every figure as a
 //! ratio to that baseline, since this machine is shared and noisy.
 
-use alfd::core::estimate::Estimator;
-use alfd::core::inverse::{fill_grid, percentile_ranks, InvGrid, Selector};
+use alfd::core::estimate::{disparity_span_per_m, visibility_step, Estimator};
+use alfd::core::inverse::{fill_grid, fill_grid_counted, percentile_ranks, InvGrid, Selector};
 use alfd::core::occlusion::{scan, BoundaryParams};
 use alfd::core::plane;
 use alfd::core::score;
+use alfd::core::visibility::{visibility, VisibilityParams, DEFAULT_PHASES};
 use alfd::core::{DepthData, DepthImage, EstimatorParams, Intrinsics};
 use alfd::synth::{reference_scenes, to_z16};
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
@@ -37,7 +38,8 @@ fn frame(w: usize, h: usize) -> (DepthImage, Intrinsics, f64) {
 }
 
 fn bench(c: &mut Criterion) {
-    for (w, h) in [(640usize, 480usize), (1280, 720)] {
+    // 848×480: the RealSense D4xx's native depth mode (docs/performance.md).
+    for (w, h) in [(640usize, 480usize), (848, 480), (1280, 720)] {
         let (img, intr, pitch) = frame(w, h);
         let DepthData::Z16 { data, .. } = img.data() else {
             unreachable!()
@@ -109,6 +111,32 @@ fn bench(c: &mut Criterion) {
         g.bench_function("stage_percentiles", |b| {
             b.iter(|| sel.select2(black_box(&grid.w), false, percentile_ranks(n, 0.005, 0.995)))
         });
+        // What the estimator runs on a Z16 frame: the inverse depth with the
+        // Z16 values counted in the same pass, then the percentiles from the count.
+        let mut counted = InvGrid::default();
+        g.bench_function("stage_inverse_depth_counted", |b| {
+            b.iter(|| {
+                fill_grid_counted(
+                    black_box(&img),
+                    params.track_axis,
+                    1,
+                    &params.depth_range,
+                    &mut counted,
+                )
+            })
+        });
+        fill_grid_counted(
+            &img,
+            params.track_axis,
+            1,
+            &params.depth_range,
+            &mut counted,
+        );
+        g.bench_function("stage_percentiles_from_count", |b| {
+            b.iter(|| {
+                black_box(&counted).select2(&mut sel, false, percentile_ranks(n, 0.005, 0.995))
+            })
+        });
         let bp = BoundaryParams {
             tau_abs_per_m: params.tau_abs_per_m,
             tau_rel: params.tau_rel,
@@ -121,6 +149,51 @@ fn bench(c: &mut Criterion) {
         let geom = intr.track(params.track_axis);
         g.bench_function("stage_sspa_plane_fit", |b| {
             b.iter(|| plane::fit(black_box(&grid), &geom, pitch, 3, 2.5, &mut sel))
+        });
+        // The quality model's stages (the default model).
+        let surface = (grid.valid - grid.sky) as u64;
+        let mut scratch = Vec::new();
+        g.bench_function("stage_disparity_span", |b| {
+            b.iter(|| {
+                disparity_span_per_m(
+                    black_box(&grid),
+                    &geom,
+                    pitch,
+                    percentile_ranks(surface, 0.005, 0.995),
+                    &mut scratch,
+                    &mut sel,
+                )
+            })
+        });
+        let vstep = visibility_step(grid.samples(), 1, params.visibility_samples_max);
+        let mut vgrid = InvGrid::default();
+        g.bench_function(format!("stage_visibility_grid_step_{vstep}"), |b| {
+            b.iter(|| {
+                fill_grid(
+                    black_box(&img),
+                    params.track_axis,
+                    vstep,
+                    &params.depth_range,
+                    &mut vgrid,
+                )
+            })
+        });
+        fill_grid(
+            &img,
+            params.track_axis,
+            vstep,
+            &params.depth_range,
+            &mut vgrid,
+        );
+        let vp = VisibilityParams {
+            unseen_fraction_max: params.quality.unseen_fraction_max,
+            views_per_point_min: params.quality.views_per_point_min,
+            phases: DEFAULT_PHASES,
+            views_band: 0.5,
+            ..VisibilityParams::default()
+        };
+        g.bench_function(format!("stage_visibility_step_{vstep}"), |b| {
+            b.iter(|| visibility(black_box(&vgrid), &geom, pitch, &vp))
         });
         let sp = params.score.clone().unwrap();
         let mut sgrid = InvGrid::default();

@@ -3,7 +3,7 @@
 //! terms the scene and the model need are computed, and the result says which.
 
 use super::depth::{DepthImage, Intrinsics};
-use super::inverse::{fill_grid, percentile_ranks, InvGrid, Selector};
+use super::inverse::{fill_grid, fill_grid_counted, percentile_ranks, InvGrid, Selector, INVALID};
 use super::occlusion::{scan, BoundaryParams, BoundaryStats};
 use super::params::{Decimation, EstimatorParams, GainModel, Model, Quality};
 use super::plane::{fit, PlaneFit};
@@ -439,7 +439,9 @@ impl Estimator {
         }
         let p = &self.params;
         let step = step.max(1);
-        fill_grid(image, p.track_axis, step, &p.depth_range, &mut self.grid);
+        // The Z16 values are counted in the same pass: the percentiles below
+        // then need no pass of their own.
+        fill_grid_counted(image, p.track_axis, step, &p.depth_range, &mut self.grid);
         let samples = self.grid.samples();
         let mut est = Estimate {
             no_estimate: None,
@@ -475,7 +477,7 @@ impl Estimator {
         let mut parallax_per_m: Option<f64> = None;
         if n_range > 0 {
             let ranks = percentile_ranks(n_range, p.percentile_low, p.percentile_high);
-            if let Some([lo, hi]) = self.selector.select2(&self.grid.w, p.sky_is_scene, ranks) {
+            if let Some([lo, hi]) = self.grid.select2(&mut self.selector, p.sky_is_scene, ranks) {
                 let (lo, hi) = (lo as f64, hi as f64);
                 est.inv_depth = Some(InvDepth {
                     min_per_m: lo,
@@ -521,12 +523,7 @@ impl Estimator {
             // both ways. Thinning the lines alone (every sample along track)
             // was measured worse: the views bound is a minimum over lines, and
             // skipped lines miss the narrowest gap (docs/error-vs-runtime.md).
-            let ratio = self.grid.samples() as f64 / p.visibility_samples_max as f64;
-            let vstep = if ratio > 1.0 {
-                (step as f64 * ratio.sqrt()).ceil() as usize
-            } else {
-                step
-            };
+            let vstep = visibility_step(self.grid.samples(), step, p.visibility_samples_max);
             let vgrid = if vstep == step {
                 &self.grid
             } else {
@@ -717,13 +714,25 @@ impl Estimator {
     }
 }
 
+/// The sampling step of the visibility sweep: the estimate's `step`, or a
+/// coarser one both ways so that a grid of `samples` at `step` thins to at most
+/// about `samples_max` (docs/error-vs-runtime.md).
+pub fn visibility_step(samples: usize, step: usize, samples_max: usize) -> usize {
+    let ratio = samples as f64 / samples_max as f64;
+    if ratio > 1.0 {
+        (step as f64 * ratio.sqrt()).ceil() as usize
+    } else {
+        step
+    }
+}
+
 /// The robust span (the ranks of the depth range) of the disparity per metre
 /// of horizontal baseline over the surface samples. Off nadir the disparity
 /// of a sample at along-track offset `u` and across-track offset `v` (px) is
 /// `(b/z)·|(f·cos φ − u·sin φ, v·sin φ)|`: the camera also moves along its
 /// optical axis by `b·sin φ`, which MMDS's `f·cos φ` leaves out. The truth
 /// (`eval::truth`) measures this span, so the parallax target is held on it.
-fn disparity_span_per_m(
+pub fn disparity_span_per_m(
     grid: &InvGrid,
     geom: &super::depth::TrackGeometry,
     pitch_rad: f64,
@@ -733,23 +742,44 @@ fn disparity_span_per_m(
 ) -> Option<f64> {
     let (s, c) = pitch_rad.sin_cos();
     let axis = geom.focal_px * c;
-    let along: Vec<f64> = grid
+    let along2: Vec<f64> = grid
         .along_idx
         .iter()
-        .map(|&i| axis - geom.v_px(i) * s)
+        .map(|&i| {
+            let g = axis - geom.v_px(i) * s;
+            g * g
+        })
         .collect();
+    let per_line = grid.per_line;
     scratch.clear();
-    scratch.reserve(grid.w.len());
-    for a in 0..grid.lines {
+    scratch.resize(grid.w.len(), INVALID);
+    let mut gain = vec![0f64; per_line];
+    let across2 = |a: usize| {
         let across = geom.across_px(grid.across_idx[a]) * s;
-        let across2 = across * across;
-        for (&w, &g_along) in grid.line(a).iter().zip(&along) {
-            // Sky (0) and invalid (negative) stay out of the selection.
-            scratch.push(if w > 0.0 {
-                ((g_along * g_along + across2).sqrt() * w as f64) as f32
-            } else {
-                w
-            });
+        across * across
+    };
+    // Lines mirrored about the principal point share their gains (the same
+    // `across²` bits): each gain row is computed once and serves both.
+    let mut done = vec![false; grid.lines];
+    for a in 0..grid.lines {
+        if done[a] {
+            continue;
+        }
+        let c2 = across2(a);
+        for (g, &g_along2) in gain.iter_mut().zip(&along2) {
+            *g = (g_along2 + c2).sqrt();
+        }
+        let mirror = grid.lines - 1 - a;
+        let pair = (mirror > a && across2(mirror).to_bits() == c2.to_bits()).then_some(mirror);
+        for l in std::iter::once(a).chain(pair) {
+            done[l] = true;
+            let out = &mut scratch[l * per_line..(l + 1) * per_line];
+            for ((o, &w), &g) in out.iter_mut().zip(grid.line(l)).zip(&gain) {
+                // Sky (0) and invalid (negative) stay out of the selection.
+                // Computed for every sample and then chosen, which vectorises.
+                let d = (g * w as f64) as f32;
+                *o = if w > 0.0 { d } else { w };
+            }
         }
     }
     let [lo, hi] = selector.select2(scratch, false, ranks)?;
@@ -802,4 +832,79 @@ pub fn estimate(
     params: &EstimatorParams,
 ) -> Result<(Estimate, Option<DecimationChoice>), EstimateError> {
     Estimator::new(params.clone()).estimate(image, intr, pitch_rad)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::core::depth::{DepthData, TrackAxis};
+    use crate::core::inverse::DepthRange;
+
+    /// The span as it was first written (one square root per sample, pushed
+    /// in order): the mirrored-line reuse must give the same bits.
+    fn span_reference(
+        grid: &InvGrid,
+        geom: &super::super::depth::TrackGeometry,
+        pitch_rad: f64,
+        ranks: [u64; 2],
+    ) -> Option<f64> {
+        let (s, c) = pitch_rad.sin_cos();
+        let axis = geom.focal_px * c;
+        let mut v = Vec::new();
+        for a in 0..grid.lines {
+            let across = geom.across_px(grid.across_idx[a]) * s;
+            for (&w, &i) in grid.line(a).iter().zip(&grid.along_idx) {
+                let g = axis - geom.v_px(i) * s;
+                v.push(if w > 0.0 {
+                    ((g * g + across * across).sqrt() * w as f64) as f32
+                } else {
+                    w
+                });
+            }
+        }
+        let [lo, hi] = Selector::default().select2(&v, false, ranks)?;
+        Some((hi - lo) as f64)
+    }
+
+    #[test]
+    fn disparity_span_equals_one_root_per_sample() {
+        let (w, h) = (96usize, 61usize);
+        let data: Vec<f32> = (0..w * h)
+            .map(|i| match i % 37 {
+                0 => 0.0,
+                1 => f32::INFINITY,
+                k => 10.0 + (i % w) as f32 * 0.3 + k as f32 * 0.11,
+            })
+            .collect();
+        let img = DepthImage::new(w, h, DepthData::Metres(data)).unwrap();
+        for cy in [None, Some((30.0, 30.0)), Some((47.5, 23.25))] {
+            let intr = Intrinsics::from_hfov_deg(w, h, 69.0, cy).unwrap();
+            for axis in [TrackAxis::Rows, TrackAxis::Columns] {
+                for step in [1usize, 2, 3] {
+                    let mut grid = InvGrid::default();
+                    fill_grid(&img, axis, step, &DepthRange::default(), &mut grid);
+                    let geom = intr.track(axis);
+                    let n = (grid.valid - grid.sky) as u64;
+                    for pitch in [0.3f64, -0.7, 1.2] {
+                        for ranks in [percentile_ranks(n, 0.005, 0.995), [0, n - 1]] {
+                            let got = disparity_span_per_m(
+                                &grid,
+                                &geom,
+                                pitch,
+                                ranks,
+                                &mut Vec::new(),
+                                &mut Selector::default(),
+                            );
+                            let want = span_reference(&grid, &geom, pitch, ranks);
+                            assert_eq!(
+                                got.map(f64::to_bits),
+                                want.map(f64::to_bits),
+                                "{cy:?} {axis:?} step {step} pitch {pitch}"
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
 }

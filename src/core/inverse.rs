@@ -1,5 +1,7 @@
 //! Inverse depth on a decimated, track-major sample grid, and exact order
-//! statistics of it in O(n) by a three-level radix histogram (no sort).
+//! statistics of it in O(n): for Z16 frames from a count of the raw values made
+//! in the same pass (inverse depth falls monotonically with the Z16 value), else
+//! by a three-level radix histogram of the floats (no sort).
 //!
 //! Invariant: a grid value is `INVALID` (negative), `SKY` (0.0) or a finite
 //! positive inverse depth in 1/m. Non-negative `f32` bit patterns order like
@@ -47,6 +49,14 @@ pub struct InvGrid {
     /// one load per pixel instead of a conversion and a division.
     lut: Vec<f32>,
     lut_key: Option<[u64; 3]>,
+    /// The Z16 values whose table entry is valid, `lo..=hi`, when every one of
+    /// them is a finite positive inverse depth (`None`: no such value, or a
+    /// degenerate scale; the count is then not used).
+    lut_valid: Option<(usize, usize)>,
+    /// Count of each sampled Z16 value, made by [`fill_grid_counted`].
+    hist: Vec<u32>,
+    /// Whether `hist` counts the current samples.
+    counted: bool,
 }
 
 impl InvGrid {
@@ -56,6 +66,84 @@ impl InvGrid {
     pub fn samples(&self) -> usize {
         self.w.len()
     }
+
+    /// Exact order statistics (0-based `ranks`, ascending) of the grid's valid
+    /// inverse depths, as [`Selector::select2`] gives them on `w`: from the
+    /// count of Z16 values when [`fill_grid_counted`] made one (a Z16 frame has
+    /// no sky, and the `k`-th smallest inverse depth is the table's entry of
+    /// the `k`-th largest valid Z16 value, so the result is the same value),
+    /// else by selection over the samples.
+    pub fn select2(
+        &self,
+        selector: &mut Selector,
+        include_sky: bool,
+        ranks: [u64; 2],
+    ) -> Option<[f32; 2]> {
+        let (lo, hi) = match (self.counted, self.lut_valid) {
+            (true, Some(range)) => range,
+            _ => return selector.select2(&self.w, include_sky, ranks),
+        };
+        let hist: &[u32] = &self.hist[lo..=hi];
+        let total = self.valid as u64;
+        if ranks.iter().any(|&r| r >= total) {
+            return None;
+        }
+        // Ascending inverse depth is descending Z16: count from whichever end
+        // of the histogram is nearer the rank (the percentiles are tails).
+        let z_of = |r: u64| {
+            if r < total / 2 {
+                hi - nth_from_top(hist, r)
+            } else {
+                lo + nth_from_bottom(hist, total - 1 - r)
+            }
+        };
+        Some(ranks.map(|r| self.lut[z_of(r)]))
+    }
+}
+
+/// Bins of 64 summed before the bins one by one: the tails of a depth
+/// histogram are long runs of empty bins.
+const BLOCK: usize = 64;
+
+/// Index of the bin holding the 0-based `rank`-th count from the start.
+fn nth_from_bottom(hist: &[u32], mut rank: u64) -> usize {
+    let mut start = 0;
+    for block in hist.chunks_exact(BLOCK) {
+        let c: u64 = block.iter().map(|&c| c as u64).sum();
+        if rank < c {
+            break;
+        }
+        rank -= c;
+        start += BLOCK;
+    }
+    for (b, &c) in hist[start..].iter().enumerate() {
+        if rank < c as u64 {
+            return start + b;
+        }
+        rank -= c as u64;
+    }
+    // Callers pass rank < total, so the loop always returns; stay total anyway.
+    hist.len().saturating_sub(1)
+}
+
+/// Distance from the end of the bin holding the `rank`-th count from the end.
+fn nth_from_top(hist: &[u32], mut rank: u64) -> usize {
+    let mut end = hist.len();
+    for block in hist.rchunks_exact(BLOCK) {
+        let c: u64 = block.iter().map(|&c| c as u64).sum();
+        if rank < c {
+            break;
+        }
+        rank -= c;
+        end -= BLOCK;
+    }
+    for (b, &c) in hist[..end].iter().rev().enumerate() {
+        if rank < c as u64 {
+            return hist.len() - end + b;
+        }
+        rank -= c as u64;
+    }
+    hist.len().saturating_sub(1)
 }
 
 /// Sample indices for a stride `step` over `extent` pixels: the centre of each block.
@@ -93,7 +181,36 @@ pub fn fill_grid(
     range: &DepthRange,
     grid: &mut InvGrid,
 ) {
+    fill(image, axis, step, range, grid, false);
+}
+
+/// [`fill_grid`], and for a Z16 frame of at least [`COUNT_MIN_SAMPLES`]
+/// samples a count of each sampled Z16 value made in the same pass, from
+/// which [`InvGrid::select2`] takes the percentiles without another pass.
+pub fn fill_grid_counted(
+    image: &DepthImage,
+    axis: TrackAxis,
+    step: usize,
+    range: &DepthRange,
+    grid: &mut InvGrid,
+) {
+    fill(image, axis, step, range, grid, true);
+}
+
+/// Below this many samples the radix selection over the samples is cheaper
+/// than clearing and scanning 65,536 counters (both are exact).
+pub const COUNT_MIN_SAMPLES: usize = 1 << 15;
+
+fn fill(
+    image: &DepthImage,
+    axis: TrackAxis,
+    step: usize,
+    range: &DepthRange,
+    grid: &mut InvGrid,
+    count: bool,
+) {
     let step = step.max(1);
+    grid.counted = false;
     let (w_img, h_img) = (image.width(), image.height());
     let (along_extent, across_extent) = match axis {
         TrackAxis::Rows => (w_img, h_img),
@@ -114,12 +231,36 @@ pub fn fill_grid(
                 range.max_m.to_bits(),
             ];
             if grid.lut_key != Some(key) {
-                grid.lut = z16_table(*scale_m, range);
+                let (lut, valid) = z16_table(*scale_m, range);
+                grid.lut = lut;
+                grid.lut_valid = valid;
                 grid.lut_key = Some(key);
             }
             let lut = std::mem::take(&mut grid.lut);
             // A fixed-size view: a u16 index needs no bounds check.
             let table: &[f32; 65536] = lut.as_slice().try_into().expect("65536 entries");
+            if count && grid.lut_valid.is_some() && grid.w.len() >= COUNT_MIN_SAMPLES {
+                let mut hist = std::mem::take(&mut grid.hist);
+                hist.clear();
+                hist.resize(65536, 0);
+                let counts: &mut [u32; 65536] =
+                    hist.as_mut_slice().try_into().expect("65536 entries");
+                // One walk: each value is converted, counted and tested once.
+                let mut valid = 0usize;
+                fill_lines(grid, axis, w_img, data, |z: u16| {
+                    counts[z as usize] += 1;
+                    let w = table[z as usize];
+                    valid += (w >= 0.0) as usize;
+                    w
+                });
+                grid.hist = hist;
+                grid.lut = lut;
+                // `lut_valid` holds no SKY entry.
+                grid.valid = valid;
+                grid.sky = 0;
+                grid.counted = true;
+                return;
+            }
             fill_lines(grid, axis, w_img, data, |z: u16| table[z as usize]);
             grid.lut = lut;
         }
@@ -138,12 +279,13 @@ pub fn fill_grid(
 }
 
 /// Inverse depth of each Z16 value: no return (0), saturation (`u16::MAX`) and
-/// depths outside `range` are `INVALID`.
-fn z16_table(scale_m: f64, range: &DepthRange) -> Vec<f32> {
+/// depths outside `range` are `INVALID`. Also the valid values `lo..=hi` when
+/// each of them maps to a finite positive inverse depth (what counting needs).
+fn z16_table(scale_m: f64, range: &DepthRange) -> (Vec<f32>, Option<(usize, usize)>) {
     let lo = (range.min_m / scale_m).ceil().max(1.0);
     let hi = (range.max_m / scale_m).floor().min((u16::MAX - 1) as f64);
     let inv_scale = (1.0 / scale_m) as f32;
-    (0..=u16::MAX)
+    let table: Vec<f32> = (0..=u16::MAX)
         .map(|z| {
             let zf = z as f64;
             if zf >= lo && zf <= hi {
@@ -152,7 +294,11 @@ fn z16_table(scale_m: f64, range: &DepthRange) -> Vec<f32> {
                 INVALID
             }
         })
-        .collect()
+        .collect();
+    let valid = (lo <= hi)
+        .then_some((lo as usize, hi as usize))
+        .filter(|&(l, h)| table[l..=h].iter().all(|&w| w > 0.0 && w.is_finite()));
+    (table, valid)
 }
 
 /// Converts the sampled pixels line by line; the common case (rows along
@@ -162,7 +308,7 @@ fn fill_lines<T: Copy>(
     axis: TrackAxis,
     w_img: usize,
     data: &[T],
-    convert: impl Fn(T) -> f32,
+    mut convert: impl FnMut(T) -> f32,
 ) {
     let per_line = grid.per_line;
     for (a, out) in grid.w.chunks_exact_mut(per_line).enumerate() {
@@ -323,4 +469,95 @@ pub fn percentile_ranks(n: u64, p_low: f64, p_high: f64) -> [u64; 2] {
     let lo = (p_low * last).floor().clamp(0.0, last) as u64;
     let hi = (p_high * last).ceil().clamp(0.0, last) as u64;
     [lo, hi.max(lo)]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A Z16 frame of smooth depth with noise, no-return and saturated pixels.
+    fn z16_frame(w: usize, h: usize, seed: u64) -> DepthImage {
+        let mut s = seed;
+        let data = (0..w * h)
+            .map(|i| {
+                s = s
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                let r = (s >> 33) as u32;
+                match r % 50 {
+                    0 => 0,
+                    1 => u16::MAX,
+                    // Runs of equal values (flat ground) and a spread (walls).
+                    2..=20 => 20_000,
+                    _ => (5_000 + (i % w) * 40 + (r % 700) as usize) as u16,
+                }
+            })
+            .collect();
+        DepthImage::new(
+            w,
+            h,
+            DepthData::Z16 {
+                data,
+                scale_m: 0.001,
+            },
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn counted_percentiles_equal_the_selection() {
+        let mut sel = Selector::default();
+        let ranges = [
+            DepthRange::default(),
+            DepthRange {
+                min_m: 6.0,
+                max_m: 25.0,
+            },
+        ];
+        for (seed, (w, h)) in [(1u64, (320usize, 240usize)), (2, (256, 160))] {
+            let img = z16_frame(w, h, seed);
+            for range in &ranges {
+                for (axis, step) in [(TrackAxis::Rows, 1), (TrackAxis::Columns, 1)] {
+                    let (mut plain, mut counted) = (InvGrid::default(), InvGrid::default());
+                    fill_grid(&img, axis, step, range, &mut plain);
+                    fill_grid_counted(&img, axis, step, range, &mut counted);
+                    assert!(counted.counted, "{w}x{h} counted");
+                    assert_eq!(plain.w, counted.w);
+                    assert_eq!((plain.valid, plain.sky), (counted.valid, counted.sky));
+                    let n = plain.valid as u64;
+                    let mut ranks = vec![
+                        percentile_ranks(n, 0.005, 0.995),
+                        [0, n - 1],
+                        [n / 2, n / 2],
+                        [1, n - 2],
+                    ];
+                    ranks.extend((0..20).map(|k| [k * n / 20, (n - 1) - k * n / 40]));
+                    for r in ranks {
+                        for sky in [false, true] {
+                            assert_eq!(
+                                counted.select2(&mut sel, sky, r),
+                                sel.select2(&plain.w, sky, r),
+                                "{w}x{h} {range:?} {axis:?} ranks {r:?}"
+                            );
+                        }
+                    }
+                    assert_eq!(counted.select2(&mut sel, false, [0, n]), None);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn small_grids_and_metres_are_not_counted() {
+        let img = z16_frame(64, 48, 7);
+        let mut g = InvGrid::default();
+        fill_grid_counted(&img, TrackAxis::Rows, 1, &DepthRange::default(), &mut g);
+        assert!(!g.counted);
+        let big = z16_frame(320, 240, 8);
+        fill_grid_counted(&big, TrackAxis::Rows, 1, &DepthRange::default(), &mut g);
+        assert!(g.counted);
+        // A later plain fill drops the count of the earlier frame.
+        fill_grid(&big, TrackAxis::Rows, 1, &DepthRange::default(), &mut g);
+        assert!(!g.counted);
+    }
 }

@@ -224,26 +224,43 @@ fn sweep(
     fn not_above(p: (f64, f64), a: (f64, f64), b: (f64, f64)) -> bool {
         (a.1 - p.1) * (b.0 - p.0) <= (b.1 - p.1) * (a.0 - p.0)
     }
+    // The highest `Y` of the points beyond `p` (all swept so far).
+    let mut y_beyond = f64::NEG_INFINITY;
+    // The top of the stack, also kept here: reading back the point pushed one
+    // iteration before (two 8-byte stores, one 16-byte load) stalls on store
+    // forwarding, which was the sweep's largest cost.
+    let mut last = (0.0, 0.0);
     for k in 0..n {
         let i = if behind { k } else { n - 1 - k };
         let p = (sign * pts[i].0, pts[i].1);
         // The hull of the points beyond `p`, seen from `p`: what lies on or
         // under the chord from `p` to the next vertex is no one's tangent.
-        while let [.., b, a] = stack[..] {
-            if not_above(p, a, b) {
+        while stack.len() >= 2 {
+            let b = stack[stack.len() - 2];
+            if not_above(p, last, b) {
                 stack.pop();
+                last = b;
             } else {
                 break;
             }
         }
         let pl = (p.0, p.1 * (1.0 + margin));
+        if pl.1 >= y_beyond {
+            // Nothing beyond rises above the lifted point, so no tangent has
+            // `dy > 0` and this side stays open (open ground, roofs): the
+            // walk below would find the same.
+            stack.push(p);
+            last = p;
+            y_beyond = y_beyond.max(p.1);
+            continue;
+        }
         let tangent = if margin > 0.0 && stack.len() >= 2 {
             // From the lifted point the tangent lies at or beyond the top:
             // slopes along the chain rise, then fall. A small lift moves it a
             // vertex or two: walk a few, then bisect the rest.
             // Chain order: c = 0 is the top (nearest), stack index len−1−c.
             let top = stack.len() - 1;
-            let at = |c: usize| stack[top - c];
+            let at = |c: usize| if c == 0 { last } else { stack[top - c] };
             let mut lo = 0usize;
             while lo < top.min(4) && !not_above(pl, at(lo + 1), at(lo)) {
                 lo += 1;
@@ -261,7 +278,7 @@ fn sweep(
             }
             Some(at(lo))
         } else {
-            stack.last().copied()
+            (!stack.is_empty()).then_some(last)
         };
         if let Some(q) = tangent {
             let dy = q.1 - pl.1;
@@ -270,6 +287,8 @@ fn sweep(
             }
         }
         stack.push(p);
+        last = p;
+        y_beyond = y_beyond.max(p.1);
     }
 }
 
@@ -506,19 +525,38 @@ fn unseen_spacing(records: &[(f32, f32)], k_max: usize, phases: usize) -> Option
     }
     let mut best = f64::INFINITY;
     let mut buf: Vec<f64> = Vec::new();
+    // The records that can still count: an interval of length `L` has
+    // `onset ≥ L` at every phase, so once a phase has set `best`, those with
+    // `L ≥ best` never count again. The relative 1e-9 covers the rounding of
+    // `L` and of the onsets (a few 1e-16), so the counts are the same.
+    let mut live: Vec<(f32, f32)> = Vec::new();
+    let mut filtered = false;
     for i in order {
         let k = Phase::new(i as f64 / (p + 1) as f64);
         let onset = |&(a, b): &(f32, f32)| k.onset_m(a as f64, b as f64);
+        let set: &[(f32, f32)] = if filtered { &live } else { records };
         // Counted first (branch-free): most phases do not beat the best.
-        let n = records
+        let n = set
             .iter()
             .map(|r| (onset(r) < best) as usize)
             .sum::<usize>();
         if n > k_max {
             buf.clear();
-            buf.extend(records.iter().map(onset).filter(|&o| o < best));
+            buf.extend(set.iter().map(onset).filter(|&o| o < best));
             let (_, v, _) = buf.select_nth_unstable_by(k_max, f64::total_cmp);
             best = best.min(*v);
+            let keep = best * (1.0 + 1e-9);
+            // A NaN length stays, as the count would see its record.
+            let short = |&(a, b): &(f32, f32)| {
+                let l = b as f64 - a as f64;
+                l < keep || l.is_nan()
+            };
+            if filtered {
+                live.retain(short);
+            } else if best.is_finite() {
+                live = records.iter().copied().filter(short).collect();
+                filtered = true;
+            }
         }
     }
     best.is_finite().then_some(best)
@@ -699,6 +737,88 @@ mod tests {
                             || (out[i].is_infinite() && brute.is_infinite()),
                         "margin {margin} behind {behind} point {i}: sweep {} brute {brute}",
                         out[i]
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn open_ground_exit_matches_brute_force() {
+        // Flat ground with depth noise under the margin, a block and a post:
+        // most points take the early exit (nothing beyond rises above them).
+        let x: Vec<f64> = (0..60).map(|i| i as f64 * 0.21 - 3.0).collect();
+        let y: Vec<f64> = (0..60)
+            .map(|i| match i {
+                12..=15 => 1.6,
+                41 => 1.3,
+                _ => 1.0 + ((i * 7919) % 7) as f64 * 1e-4,
+            })
+            .collect();
+        let pts: Vec<(f64, f64)> = x.iter().copied().zip(y.iter().copied()).collect();
+        for margin in [0.0, 1e-4, 1e-3, 0.5] {
+            for behind in [false, true] {
+                let mut out = Vec::new();
+                sweep(&pts, behind, margin, &mut Vec::new(), &mut out);
+                for i in 0..x.len() {
+                    let yl = y[i] * (1.0 + margin);
+                    let others = if behind { 0..i } else { i + 1..x.len() };
+                    let brute = others
+                        .filter(|&q| y[q] > yl)
+                        .map(|q| (x[q] - x[i]).abs() / (y[q] - yl))
+                        .fold(f64::INFINITY, f64::min);
+                    assert!(
+                        (out[i] - brute).abs() <= 1e-12 * brute.abs().max(1.0)
+                            || (out[i].is_infinite() && brute.is_infinite()),
+                        "margin {margin} behind {behind} point {i}: sweep {} brute {brute}",
+                        out[i]
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn unseen_spacing_equals_every_phase_sorted() {
+        // Intervals of all lengths, some open at one end (the frustum never
+        // loses the point): the pruned search against a sort of every phase.
+        let mut s = 99u64;
+        let mut next = || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (s >> 40) as f32 / (1u64 << 24) as f32
+        };
+        for n in [1usize, 2, 7, 50, 400] {
+            let recs: Vec<(f32, f32)> = (0..n)
+                .map(|i| {
+                    let (a, b) = (-next() * 30.0, next() * 30.0);
+                    match i % 11 {
+                        3 => (f32::NEG_INFINITY, b),
+                        7 => (a, f32::INFINITY),
+                        _ => (a, b),
+                    }
+                })
+                .collect();
+            for phases in [1usize, 2, 15] {
+                for k_max in [0usize, 1, 3, n / 2, n] {
+                    let p = phases;
+                    let want = (1..=p)
+                        .filter_map(|i| {
+                            let k = Phase::new(i as f64 / (p + 1) as f64);
+                            let mut o: Vec<f64> = recs
+                                .iter()
+                                .map(|&(a, b)| k.onset_m(a as f64, b as f64))
+                                .collect();
+                            o.sort_by(f64::total_cmp);
+                            o.get(k_max).copied()
+                        })
+                        .fold(f64::INFINITY, f64::min);
+                    let want = want.is_finite().then_some(want);
+                    assert_eq!(
+                        unseen_spacing(&recs, k_max, phases),
+                        want,
+                        "n {n} phases {phases} k_max {k_max}"
                     );
                 }
             }
