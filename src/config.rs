@@ -776,13 +776,18 @@ impl Config {
     /// What this build cannot do that the config asks for (a valid config may
     /// still need a feature: `alfd run` refuses to start, `check-config` says so).
     pub fn unsupported_by_build(&self) -> Option<String> {
-        let v4l2 = [("camera", &self.camera), ("depth", &self.depth)]
-            .into_iter()
-            .find(|(_, s)| s.kind == SourceKind::V4l2)
-            .map(|(name, _)| name);
-        match v4l2 {
-            Some(section) if !cfg!(feature = "v4l2") => Some(format!(
+        let section = |kind| {
+            [("camera", &self.camera), ("depth", &self.depth)]
+                .into_iter()
+                .find(|(_, s)| s.kind == kind)
+                .map(|(name, _)| name)
+        };
+        match (section(SourceKind::V4l2), section(SourceKind::Synthetic)) {
+            (Some(section), _) if !cfg!(feature = "v4l2") => Some(format!(
                 "{section}.source = \"v4l2\" needs V4L2 support, which this build lacks: build with `cargo build --release --features v4l2`"
+            )),
+            (_, Some(section)) if !cfg!(feature = "sim") => Some(format!(
+                "{section}.source = \"synthetic\" needs the scene renderer, which this lean build lacks: build with the default features (`cargo build --release`)"
             )),
             _ => None,
         }
@@ -921,5 +926,19 @@ mod tests {
         .unwrap();
         assert_eq!(c.depth.device.serial.as_deref(), Some("1"));
         assert_eq!(c.unsupported_by_build().is_some(), !cfg!(feature = "v4l2"));
+    }
+
+    #[test]
+    fn a_synthetic_config_is_valid_and_the_lean_build_says_what_it_lacks() {
+        let c = Config::from_text(
+            "[sim]\nscene = \"scenes/roof.toml\"\npose = \"telemetry\"\n[camera]\nsource = \"synthetic\"\n",
+            "x.toml",
+        )
+        .unwrap();
+        let note = c.unsupported_by_build();
+        assert_eq!(note.is_some(), !cfg!(feature = "sim"), "{note:?}");
+        if let Some(note) = note {
+            assert!(note.starts_with("camera.source = \"synthetic\""), "{note}");
+        }
     }
 }

@@ -10,6 +10,7 @@ pub mod estimator_task;
 pub mod outbox;
 pub mod run;
 pub mod shutdown;
+#[cfg(feature = "sim")]
 pub mod sim;
 pub mod step;
 pub mod writer;
