@@ -45,10 +45,12 @@ enum Command {
 pub fn run() -> Result<ExitCode> {
     let cli = match Cli::try_parse() {
         Ok(c) => c,
-        Err(e) => {
+        Err(e) => match unknown_name(&e) {
+            // A word outside a flag's names is bad input like any other: one line, exit 2.
+            Some(line) => return Err(commands::bad(line)),
             // clap prints its own help, version and usage errors (exit 2).
-            e.exit();
-        }
+            None => e.exit(),
+        },
     };
     logs::init(cli.log_format, cli.log_level);
     match cli.command {
@@ -60,5 +62,90 @@ pub fn run() -> Result<ExitCode> {
         Command::Tradeoff(a) => commands::tradeoff::run(a),
         #[cfg(feature = "sim")]
         Command::Eval(a) => commands::eval::run(a),
+    }
+}
+
+/// `--mode x: use frame, camera_command or autopilot_distance` for a value
+/// outside a `ValueEnum`'s names; `None` for every other clap error.
+fn unknown_name(e: &clap::Error) -> Option<String> {
+    use clap::error::{ContextKind, ContextValue, ErrorKind};
+    if e.kind() != ErrorKind::InvalidValue {
+        return None;
+    }
+    let (Some(ContextValue::String(arg)), Some(ContextValue::String(value))) = (
+        e.get(ContextKind::InvalidArg),
+        e.get(ContextKind::InvalidValue),
+    ) else {
+        return None;
+    };
+    let Some(ContextValue::Strings(names)) = e.get(ContextKind::ValidValue) else {
+        return None;
+    };
+    let flag = arg.split_whitespace().next().unwrap_or(arg);
+    let names = match names.split_last() {
+        Some((last, [])) => last.clone(),
+        Some((last, rest)) => format!("{} or {last}", rest.join(", ")),
+        None => return None,
+    };
+    Some(format!("{flag} {value}: use {names}"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse_error(args: &[&str]) -> clap::Error {
+        match Cli::try_parse_from([&["alfd"], args].concat()) {
+            Ok(_) => panic!("{args:?} parsed"),
+            Err(e) => e,
+        }
+    }
+
+    #[test]
+    fn a_name_outside_the_choices_is_one_line_naming_them() {
+        let e = parse_error(&[
+            "estimate",
+            "--depth",
+            "x",
+            "--hfov-deg",
+            "69",
+            "--format",
+            "exr",
+        ]);
+        assert_eq!(
+            unknown_name(&e).as_deref(),
+            Some("--format exr: use z16, png16 or pfm")
+        );
+        let e = parse_error(&["--log-format", "xml", "check-config", "x.toml"]);
+        assert_eq!(
+            unknown_name(&e).as_deref(),
+            Some("--log-format xml: use text or json")
+        );
+        // Other usage errors keep clap's own message and help.
+        assert_eq!(unknown_name(&parse_error(&["estimate"])), None);
+        assert_eq!(unknown_name(&parse_error(&["fly"])), None);
+    }
+
+    #[cfg(feature = "sim")]
+    #[test]
+    fn sim_takes_the_capture_modes_and_poses_by_their_config_names() {
+        let e = parse_error(&["sim", "--mode", "command"]);
+        assert_eq!(
+            unknown_name(&e).as_deref(),
+            Some("--mode command: use frame, camera_command or autopilot_distance")
+        );
+        let e = parse_error(&["sim", "--pose", "gps"]);
+        assert_eq!(
+            unknown_name(&e).as_deref(),
+            Some("--pose gps: use truth or telemetry")
+        );
+        for mode in ["frame", "camera_command", "autopilot_distance"] {
+            for pose in ["truth", "telemetry"] {
+                assert!(
+                    Cli::try_parse_from(["alfd", "sim", "--mode", mode, "--pose", pose]).is_ok(),
+                    "{mode} {pose}"
+                );
+            }
+        }
     }
 }

@@ -462,10 +462,13 @@ pub struct SourceConfig {
     pub mount_pitch_rad: f64,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+/// `[sim] pose` and `alfd sim --pose`: where the synthetic camera renders.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
 pub enum SimPose {
+    /// At the simulator's true pose (only `alfd sim` has it).
     #[default]
     Truth,
+    /// At the pose alfd believes, from the telemetry.
     Telemetry,
 }
 
@@ -521,6 +524,22 @@ fn word<T: Copy>(field: &str, value: &str, choices: &[(&str, T)]) -> Result<T, (
                 format!("unknown value {value:?}: use {}", names.join(", ")),
             )
         })
+}
+
+/// A name of `T` as the command line accepts it (clap's `ValueEnum`), so the
+/// config and the flags share one list of names.
+fn named<T: clap::ValueEnum>(field: &str, value: &str) -> Result<T, (String, String)> {
+    T::from_str(value, false).map_err(|_| {
+        let names: Vec<String> = T::value_variants()
+            .iter()
+            .filter_map(|v| v.to_possible_value())
+            .map(|p| format!("\"{}\"", p.get_name()))
+            .collect();
+        (
+            field.to_string(),
+            format!("unknown value {value:?}: use {}", names.join(", ")),
+        )
+    })
 }
 
 fn positive(field: &str, v: f64, max: f64) -> Result<f64, (String, String)> {
@@ -649,11 +668,7 @@ impl RawConfig {
         let camera = source("camera", &self.camera, base)?;
         let depth = source("depth", &self.depth, base)?;
         let sim_pose = match &self.sim.pose {
-            Some(w) => word(
-                "sim.pose",
-                w,
-                &[("truth", SimPose::Truth), ("telemetry", SimPose::Telemetry)],
-            )?,
+            Some(w) => named("sim.pose", w)?,
             None => SimPose::Truth,
         };
         let sim_scene = self.sim.scene.as_ref().map(|p| resolve(base, p));
@@ -679,15 +694,7 @@ impl RawConfig {
         }
         let c = &self.capture;
         let mode = match &c.mode {
-            Some(w) => word(
-                "capture.mode",
-                w,
-                &[
-                    ("frame", CaptureMode::Frame),
-                    ("camera_command", CaptureMode::CameraCommand),
-                    ("autopilot_distance", CaptureMode::AutopilotDistance),
-                ],
-            )?,
+            Some(w) => named("capture.mode", w)?,
             None => CaptureMode::Frame,
         };
         if mode == CaptureMode::Frame && camera.kind == SourceKind::None && self.mavlink.is_some() {

@@ -32,9 +32,9 @@ pub struct Args {
     width: usize,
     #[arg(long, default_value_t = 480)]
     height: usize,
-    /// frame, camera_command or autopilot_distance.
-    #[arg(long, default_value = "frame")]
-    mode: String,
+    /// How captures are taken.
+    #[arg(long, value_enum, default_value_t = CaptureMode::Frame)]
+    mode: CaptureMode,
     /// quality (the default), occlusion, mmds, sspa or fixed.
     #[arg(long)]
     model: Option<String>,
@@ -44,9 +44,9 @@ pub struct Args {
     /// Also measure each frame against the last capture ([trigger] closed_loop).
     #[arg(long)]
     closed_loop: bool,
-    /// Render at the simulator's truth, or at the pose alfd believes.
-    #[arg(long, default_value = "truth")]
-    pose: String,
+    /// Where the synthetic camera renders.
+    #[arg(long, value_enum, default_value_t = SimPose::Truth)]
+    pose: SimPose,
     /// Forward MAVLink to a ground station: udpout:HOST:PORT.
     #[arg(long)]
     gcs: Option<String>,
@@ -58,16 +58,6 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<ExitCode> {
-    let mode = match a.mode.as_str() {
-        "frame" => CaptureMode::Frame,
-        "camera_command" => CaptureMode::CameraCommand,
-        "autopilot_distance" => CaptureMode::AutopilotDistance,
-        m => {
-            return Err(bad(format!(
-                "--mode {m}: use frame, camera_command or autopilot_distance"
-            )))
-        }
-    };
     let model = match &a.model {
         Some(m) => Some(Model::parse(m).ok_or_else(|| {
             bad(format!(
@@ -82,11 +72,6 @@ pub fn run(a: Args) -> Result<ExitCode> {
                 .ok_or_else(|| bad(format!("--profile {p}: use lightfield or mapping")))?,
         ),
         None => None,
-    };
-    let pose = match a.pose.as_str() {
-        "truth" => SimPose::Truth,
-        "telemetry" => SimPose::Telemetry,
-        p => return Err(bad(format!("--pose {p}: use truth or telemetry"))),
     };
     for (name, v, max) in [
         ("--speed-mps", a.speed_mps, 50.0),
@@ -114,11 +99,11 @@ pub fn run(a: Args) -> Result<ExitCode> {
         fps: a.fps,
         width: a.width,
         height: a.height,
-        mode,
+        mode: a.mode,
         model,
         profile,
         closed_loop: a.closed_loop,
-        pose,
+        pose: a.pose,
         gcs: a.gcs,
         progress: !a.no_progress && std::io::stderr().is_terminal(),
         length_m: a.length_m,
