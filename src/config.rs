@@ -462,10 +462,13 @@ pub struct SourceConfig {
     pub mount_pitch_rad: f64,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+/// `[sim] pose` and `alfd sim --pose`: where the synthetic camera renders.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
 pub enum SimPose {
+    /// At the simulator's true pose (only `alfd sim` has it).
     #[default]
     Truth,
+    /// At the pose alfd believes, from the telemetry.
     Telemetry,
 }
 
@@ -521,6 +524,22 @@ fn word<T: Copy>(field: &str, value: &str, choices: &[(&str, T)]) -> Result<T, (
                 format!("unknown value {value:?}: use {}", names.join(", ")),
             )
         })
+}
+
+/// A name of `T` as the command line accepts it (clap's `ValueEnum`), so the
+/// config and the flags share one list of names.
+fn named<T: clap::ValueEnum>(field: &str, value: &str) -> Result<T, (String, String)> {
+    T::from_str(value, false).map_err(|_| {
+        let names: Vec<String> = T::value_variants()
+            .iter()
+            .filter_map(|v| v.to_possible_value())
+            .map(|p| format!("\"{}\"", p.get_name()))
+            .collect();
+        (
+            field.to_string(),
+            format!("unknown value {value:?}: use {}", names.join(", ")),
+        )
+    })
 }
 
 fn positive(field: &str, v: f64, max: f64) -> Result<f64, (String, String)> {
@@ -649,11 +668,7 @@ impl RawConfig {
         let camera = source("camera", &self.camera, base)?;
         let depth = source("depth", &self.depth, base)?;
         let sim_pose = match &self.sim.pose {
-            Some(w) => word(
-                "sim.pose",
-                w,
-                &[("truth", SimPose::Truth), ("telemetry", SimPose::Telemetry)],
-            )?,
+            Some(w) => named("sim.pose", w)?,
             None => SimPose::Truth,
         };
         let sim_scene = self.sim.scene.as_ref().map(|p| resolve(base, p));
@@ -679,15 +694,7 @@ impl RawConfig {
         }
         let c = &self.capture;
         let mode = match &c.mode {
-            Some(w) => word(
-                "capture.mode",
-                w,
-                &[
-                    ("frame", CaptureMode::Frame),
-                    ("camera_command", CaptureMode::CameraCommand),
-                    ("autopilot_distance", CaptureMode::AutopilotDistance),
-                ],
-            )?,
+            Some(w) => named("capture.mode", w)?,
             None => CaptureMode::Frame,
         };
         if mode == CaptureMode::Frame && camera.kind == SourceKind::None && self.mavlink.is_some() {
@@ -776,13 +783,18 @@ impl Config {
     /// What this build cannot do that the config asks for (a valid config may
     /// still need a feature: `alfd run` refuses to start, `check-config` says so).
     pub fn unsupported_by_build(&self) -> Option<String> {
-        let v4l2 = [("camera", &self.camera), ("depth", &self.depth)]
-            .into_iter()
-            .find(|(_, s)| s.kind == SourceKind::V4l2)
-            .map(|(name, _)| name);
-        match v4l2 {
-            Some(section) if !cfg!(feature = "v4l2") => Some(format!(
+        let section = |kind| {
+            [("camera", &self.camera), ("depth", &self.depth)]
+                .into_iter()
+                .find(|(_, s)| s.kind == kind)
+                .map(|(name, _)| name)
+        };
+        match (section(SourceKind::V4l2), section(SourceKind::Synthetic)) {
+            (Some(section), _) if !cfg!(feature = "v4l2") => Some(format!(
                 "{section}.source = \"v4l2\" needs V4L2 support, which this build lacks: build with `cargo build --release --features v4l2`"
+            )),
+            (_, Some(section)) if !cfg!(feature = "sim") => Some(format!(
+                "{section}.source = \"synthetic\" needs the scene renderer, which this lean build lacks: build with the default features (`cargo build --release`)"
             )),
             _ => None,
         }
@@ -921,5 +933,19 @@ mod tests {
         .unwrap();
         assert_eq!(c.depth.device.serial.as_deref(), Some("1"));
         assert_eq!(c.unsupported_by_build().is_some(), !cfg!(feature = "v4l2"));
+    }
+
+    #[test]
+    fn a_synthetic_config_is_valid_and_the_lean_build_says_what_it_lacks() {
+        let c = Config::from_text(
+            "[sim]\nscene = \"scenes/roof.toml\"\npose = \"telemetry\"\n[camera]\nsource = \"synthetic\"\n",
+            "x.toml",
+        )
+        .unwrap();
+        let note = c.unsupported_by_build();
+        assert_eq!(note.is_some(), !cfg!(feature = "sim"), "{note:?}");
+        if let Some(note) = note {
+            assert!(note.starts_with("camera.source = \"synthetic\""), "{note}");
+        }
     }
 }

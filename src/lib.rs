@@ -1,18 +1,24 @@
 //! alfd: occlusion-aware light-field sampling for drone captures.
 //! `core` is pure numerics; everything else is the edges (files, devices, links).
+//! The simulator, renderer and evaluation are behind the default feature `sim`.
 
 pub mod capture;
 pub mod config;
 pub mod core;
 pub mod daemon;
 pub mod depthio;
+#[cfg(feature = "sim")]
 pub mod eval;
 pub mod link;
+#[cfg(feature = "sim")]
 pub mod metrics;
 pub mod notify;
+#[cfg(feature = "sim")]
 pub mod render;
 pub mod report;
+#[cfg(feature = "sim")]
 pub mod scene;
+#[cfg(feature = "sim")]
 pub mod simreport;
 pub mod source;
 pub mod synth;

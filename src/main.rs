@@ -1,8 +1,10 @@
-//! The `alfd` binary: parses the command line and calls the library. Errors are
-//! mapped to exit codes in one place: 2 for bad input, 1 for anything else.
+//! The `alfd` binary: `cli` parses the command line once and hands each
+//! subcommand (`commands`, one file each) its arguments; the subcommands call
+//! the library. Errors are mapped to exit codes in one place: 2 for bad input,
+//! 1 for anything else.
 
 mod cli;
-mod daemon_cmd;
+mod commands;
 
 use std::process::ExitCode;
 
@@ -11,7 +13,7 @@ fn main() -> ExitCode {
         Ok(code) => code,
         Err(e) => {
             eprintln!("alfd: error: {e:#}");
-            ExitCode::from(cli::exit_code(&e))
+            ExitCode::from(commands::exit_code(&e))
         }
     }
 }

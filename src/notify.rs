@@ -1,15 +1,15 @@
-//! systemd service notification (the sd_notify protocol) without libsystemd:
-//! one datagram per state change to `$NOTIFY_SOCKET`, and the watchdog interval
+//! systemd service notification: READY=1, STATUS=…, WATCHDOG=1 and STOPPING=1
+//! sent to `$NOTIFY_SOCKET` by the `sd-notify` crate, and the watchdog interval
 //! from `$WATCHDOG_USEC`/`$WATCHDOG_PID`. Outside systemd every call is a no-op;
 //! a failed send is returned as an error and never panics.
 //!
 //! The environment is read, not unset (libsystemd's `unset_environment = 0`):
 //! alfd spawns no child processes that could inherit it, and changing the
-//! environment of a multi-threaded process is unsound.
+//! environment of a multi-threaded process is unsound. As with libsystemd's
+//! `sd_notify`, a send blocks while systemd's queue is full (it holds megabytes).
 
+use sd_notify::NotifyState;
 use std::io;
-use std::os::linux::net::SocketAddrExt;
-use std::os::unix::net::{SocketAddr, UnixDatagram};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -20,23 +20,15 @@ const MESSAGE_MAX_BYTES: usize = 4096;
 /// A failure to deliver a notification to systemd.
 #[derive(Debug, thiserror::Error)]
 pub enum NotifyError {
-    /// `$NOTIFY_SOCKET` names neither a path (`/…`) nor an abstract socket (`@…`).
+    /// `$NOTIFY_SOCKET` is not an absolute path: a relative path, or an abstract
+    /// (`@…`) or vsock address, which `sd-notify` does not connect to.
     #[error(
-        "NOTIFY_SOCKET={0:?} is neither an absolute path nor an abstract socket name (@name); \
-         systemd sets it itself, so something else in the environment overrode it"
+        "NOTIFY_SOCKET={0:?} is not an absolute path to systemd's notify socket \
+         (systemd passes services one, e.g. /run/systemd/notify; something else in \
+         the environment overrode it)"
     )]
     UnsupportedAddress(String),
-    /// The address is well formed but not usable as a socket address (e.g. too long).
-    #[error("notify socket {socket}: invalid address: {source}")]
-    Address {
-        socket: String,
-        #[source]
-        source: io::Error,
-    },
-    /// The datagram socket could not be created.
-    #[error("cannot create a datagram socket to notify systemd: {0}")]
-    Socket(#[source] io::Error),
-    /// systemd's socket refused the message (gone, full, or not permitted).
+    /// systemd's socket refused the message (gone, or not permitted).
     #[error("cannot send {message:?} to the systemd notify socket {socket}: {source}")]
     Send {
         socket: String,
@@ -51,17 +43,15 @@ pub enum NotifyError {
 enum Target {
     /// Not started by systemd (or with notification off): every call is a no-op.
     Disabled,
+    /// `$NOTIFY_SOCKET`, which `sd-notify` reads itself when sending.
     Path(PathBuf),
-    /// The name after the `@`, without the leading NUL of the kernel address.
-    Abstract(Vec<u8>),
-    /// Set but not understood: reported on every send rather than ignored.
+    /// Set but not usable: reported on every send rather than ignored.
     Unsupported(String),
 }
 
 /// Sends service state to systemd (`Type=notify`) and feeds its watchdog.
 ///
-/// Cheap to clone; each call opens a non-blocking socket, so a send never
-/// stalls the daemon (a full systemd queue comes back as an error).
+/// Cheap to clone; each call sends one datagram.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Notifier {
     target: Target,
@@ -88,14 +78,6 @@ impl Notifier {
         )
     }
 
-    /// A notifier sending to the datagram socket at `path`, with no watchdog.
-    pub fn with_socket(path: impl Into<PathBuf>) -> Self {
-        Notifier {
-            target: Target::Path(path.into()),
-            watchdog_timeout: None,
-        }
-    }
-
     /// A notifier that does nothing, as outside systemd.
     pub fn disabled() -> Self {
         Notifier {
@@ -110,7 +92,7 @@ impl Notifier {
         self
     }
 
-    /// The socket's path when it is a file (not abstract), for messages.
+    /// The notify socket's path, for messages.
     pub fn socket_path(&self) -> Option<&Path> {
         match &self.target {
             Target::Path(p) => Some(p),
@@ -125,23 +107,23 @@ impl Notifier {
 
     /// Start-up is finished: systemd marks the unit active (`READY=1`).
     pub fn ready(&self) -> Result<(), NotifyError> {
-        self.send("READY=1")
+        self.send(NotifyState::Ready)
     }
 
     /// Shutdown has begun (`STOPPING=1`).
     pub fn stopping(&self) -> Result<(), NotifyError> {
-        self.send("STOPPING=1")
+        self.send(NotifyState::Stopping)
     }
 
     /// One line shown by `systemctl status` (`STATUS=…`); line breaks and other
     /// control characters become spaces, and a long text is cut to fit.
     pub fn status(&self, text: &str) -> Result<(), NotifyError> {
-        self.send(&status_message(text))
+        self.send(NotifyState::Status(&status_text(text)))
     }
 
     /// Feeds the watchdog (`WATCHDOG=1`); call every [`Self::watchdog_interval`].
     pub fn watchdog(&self) -> Result<(), NotifyError> {
-        self.send("WATCHDOG=1")
+        self.send(NotifyState::Watchdog)
     }
 
     /// How often to feed the watchdog: half of `WATCHDOG_USEC`, as systemd
@@ -150,30 +132,18 @@ impl Notifier {
         self.watchdog_timeout.map(|t| t / 2)
     }
 
-    fn send(&self, message: &str) -> Result<(), NotifyError> {
-        let (addr, socket) = match &self.target {
-            Target::Disabled => return Ok(()),
-            Target::Unsupported(s) => return Err(NotifyError::UnsupportedAddress(s.clone())),
-            Target::Path(p) => (SocketAddr::from_pathname(p), p.display().to_string()),
-            Target::Abstract(name) => (
-                SocketAddr::from_abstract_name(name),
-                format!("@{}", String::from_utf8_lossy(name)),
-            ),
-        };
-        let addr = addr.map_err(|source| NotifyError::Address {
-            socket: socket.clone(),
-            source,
-        })?;
-        let sock = UnixDatagram::unbound().map_err(NotifyError::Socket)?;
-        sock.set_nonblocking(true).map_err(NotifyError::Socket)?;
-        // A datagram is sent whole or not at all, so a short count cannot happen.
-        sock.send_to_addr(message.as_bytes(), &addr)
-            .map(drop)
-            .map_err(|source| NotifyError::Send {
-                socket,
-                message: message.to_owned(),
-                source,
-            })
+    fn send(&self, state: NotifyState) -> Result<(), NotifyError> {
+        match &self.target {
+            Target::Disabled => Ok(()),
+            Target::Unsupported(s) => Err(NotifyError::UnsupportedAddress(s.clone())),
+            Target::Path(p) => sd_notify::notify(std::slice::from_ref(&state)).map_err(|source| {
+                NotifyError::Send {
+                    socket: p.display().to_string(),
+                    message: state.to_string(),
+                    source,
+                }
+            }),
+        }
     }
 }
 
@@ -188,15 +158,14 @@ impl Default for Notifier {
 ///
 /// The watchdog is on when `usec` is a positive integer and `pid`, if set, is
 /// `my_pid` (systemd sets it so that children do not feed the parent's
-/// watchdog). Anything malformed turns the watchdog off rather than failing.
+/// watchdog). Anything malformed turns the watchdog off rather than failing, as
+/// libsystemd does; `sd_notify::watchdog_enabled` would instead ignore a
+/// malformed `WATCHDOG_PID`, and report `WATCHDOG_USEC=0` as a zero timeout.
 fn parse_env(socket: Option<&str>, usec: Option<&str>, pid: Option<&str>, my_pid: u32) -> Notifier {
     let target = match socket {
         None | Some("") => Target::Disabled,
         Some(s) if s.starts_with('/') => Target::Path(PathBuf::from(s)),
-        Some(s) => match s.strip_prefix('@') {
-            Some(name) => Target::Abstract(name.as_bytes().to_vec()),
-            None => Target::Unsupported(s.to_owned()),
-        },
+        Some(s) => Target::Unsupported(s.to_owned()),
     };
     let for_us = match pid {
         None => true,
@@ -212,92 +181,129 @@ fn parse_env(socket: Option<&str>, usec: Option<&str>, pid: Option<&str>, my_pid
     }
 }
 
-/// `STATUS=text` on one line (systemd splits messages at newlines, so a newline
-/// would inject another assignment), within [`MESSAGE_MAX_BYTES`].
-fn status_message(text: &str) -> String {
-    let mut message = String::from("STATUS=");
+/// The text of `STATUS=text\n` on one line (systemd splits messages at
+/// newlines, so a newline would inject another assignment), the whole message
+/// within [`MESSAGE_MAX_BYTES`].
+fn status_text(text: &str) -> String {
+    let room = MESSAGE_MAX_BYTES - "STATUS=\n".len();
+    let mut out = String::new();
     for c in text.chars() {
         let c = if c.is_control() { ' ' } else { c };
-        if message.len() + c.len_utf8() > MESSAGE_MAX_BYTES {
+        if out.len() + c.len_utf8() > room {
             break;
         }
-        message.push(c);
+        out.push(c);
     }
-    message
+    out
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::sync::atomic::{AtomicU32, Ordering};
+    use std::os::unix::net::UnixDatagram;
+    use std::process::Command;
 
-    /// A socket standing in for systemd's, bound in a fresh directory.
-    fn listener() -> (tempfile::TempDir, PathBuf, UnixDatagram) {
+    /// Set in the child process that [`child`] runs: what it is to send.
+    const CHILD: &str = "ALFD_NOTIFY_TEST_CHILD";
+
+    /// Runs [`in_child_process`] in a new process of this test binary with
+    /// `NOTIFY_SOCKET=socket`: `sd-notify` reads the socket from the
+    /// environment, and setting it in this multi-threaded process would race
+    /// the other tests. Panics, with the child's output, if the child failed.
+    fn child(socket: &str, what: &str) {
+        let out = Command::new(std::env::current_exe().unwrap())
+            .args([
+                "--exact",
+                "notify::tests::in_child_process",
+                "--test-threads=1",
+            ])
+            .env("NOTIFY_SOCKET", socket)
+            .env(CHILD, what)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success() && String::from_utf8_lossy(&out.stdout).contains("1 passed"),
+            "child {what}: {}\n{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+
+    /// The child's side of [`child`]; does nothing in the test run itself.
+    #[test]
+    fn in_child_process() {
+        let Ok(what) = std::env::var(CHILD) else {
+            return;
+        };
+        let n = Notifier::from_env();
+        assert!(n.is_enabled());
+        match what.as_str() {
+            "states" => {
+                n.ready().unwrap();
+                n.watchdog().unwrap();
+                n.status("capturing: 12 frames").unwrap();
+                n.status("link lost\nREADY=1\r\0x").unwrap();
+                n.status(&"x".repeat(10_000)).unwrap();
+                n.stopping().unwrap();
+            }
+            "nobody-listens" => {
+                let e = n.ready().unwrap_err();
+                assert!(matches!(e, NotifyError::Send { .. }), "{e}");
+                assert!(e.to_string().contains("READY=1"), "{e}");
+                assert!(n.status("x").is_err() && n.stopping().is_err());
+            }
+            other => panic!("unknown child {other}"),
+        }
+    }
+
+    #[test]
+    fn each_state_is_one_datagram_and_status_cannot_inject_assignments() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("notify");
         let sock = UnixDatagram::bind(&path).unwrap();
         // A guard against hanging if nothing arrives, not a wait for it: the
-        // datagram is queued before `send` returns.
+        // child has sent every datagram before it exits.
         sock.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
-        (dir, path, sock)
-    }
-
-    fn received(sock: &UnixDatagram) -> String {
+        child(path.to_str().unwrap(), "states");
         let mut buf = vec![0u8; 2 * MESSAGE_MAX_BYTES];
-        let n = sock.recv(&mut buf).unwrap();
-        String::from_utf8(buf[..n].to_vec()).unwrap()
+        let mut received = || {
+            let n = sock.recv(&mut buf).unwrap();
+            String::from_utf8(buf[..n].to_vec()).unwrap()
+        };
+        assert_eq!(received(), "READY=1\n");
+        assert_eq!(received(), "WATCHDOG=1\n");
+        assert_eq!(received(), "STATUS=capturing: 12 frames\n");
+        assert_eq!(received(), "STATUS=link lost READY=1  x\n");
+        let long = received();
+        assert_eq!(long.len(), MESSAGE_MAX_BYTES);
+        assert!(long.starts_with("STATUS=xxx") && long.ends_with("x\n"));
+        assert_eq!(received(), "STOPPING=1\n");
     }
 
     #[test]
-    fn each_state_is_one_datagram() {
-        let (_dir, path, sock) = listener();
-        let n = Notifier::with_socket(&path);
-        assert!(n.is_enabled());
-        n.ready().unwrap();
-        assert_eq!(received(&sock), "READY=1");
-        n.watchdog().unwrap();
-        assert_eq!(received(&sock), "WATCHDOG=1");
-        n.status("capturing: 12 frames").unwrap();
-        assert_eq!(received(&sock), "STATUS=capturing: 12 frames");
-        n.stopping().unwrap();
-        assert_eq!(received(&sock), "STOPPING=1");
-    }
-
-    #[test]
-    fn status_cannot_inject_assignments() {
-        let (_dir, path, sock) = listener();
-        Notifier::with_socket(&path)
-            .status("link lost\nREADY=1\r\0x")
-            .unwrap();
-        assert_eq!(received(&sock), "STATUS=link lost READY=1  x");
+    fn send_failures_are_errors_not_panics() {
+        let dir = tempfile::tempdir().unwrap();
+        child(
+            dir.path().join("nobody-listens").to_str().unwrap(),
+            "nobody-listens",
+        );
+        // Too long for a socket address.
+        child(&format!("/{}", "x".repeat(200)), "nobody-listens");
+        for socket in ["run/notify", "@alfd-notify", "vsock:2:1234"] {
+            let n = parse_env(Some(socket), None, None, 1);
+            assert!(n.is_enabled());
+            let e = n.ready().unwrap_err();
+            assert!(matches!(e, NotifyError::UnsupportedAddress(_)), "{e}");
+            assert!(e.to_string().contains(socket), "{e}");
+        }
     }
 
     #[test]
     fn long_status_is_cut_on_a_char_boundary() {
-        let m = status_message(&"é".repeat(MESSAGE_MAX_BYTES));
+        let t = status_text(&"é".repeat(MESSAGE_MAX_BYTES));
+        let m = format!("STATUS={t}\n");
         assert!(m.len() <= MESSAGE_MAX_BYTES && m.len() > MESSAGE_MAX_BYTES - 2);
-        assert!(m.starts_with("STATUS=é"));
-        let (_dir, path, sock) = listener();
-        Notifier::with_socket(&path)
-            .status(&"x".repeat(10_000))
-            .unwrap();
-        assert_eq!(received(&sock).len(), MESSAGE_MAX_BYTES);
-    }
-
-    #[test]
-    fn abstract_socket_from_env() {
-        static SEQ: AtomicU32 = AtomicU32::new(0);
-        let name = format!(
-            "alfd-notify-test-{}-{}",
-            std::process::id(),
-            SEQ.fetch_add(1, Ordering::Relaxed)
-        );
-        let sock =
-            UnixDatagram::bind_addr(&SocketAddr::from_abstract_name(&name).unwrap()).unwrap();
-        sock.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
-        let n = parse_env(Some(&format!("@{name}")), None, None, 1);
-        n.ready().unwrap();
-        assert_eq!(received(&sock), "READY=1");
+        assert!(t.starts_with('é'));
     }
 
     #[test]
@@ -311,20 +317,6 @@ mod tests {
             n.stopping().unwrap();
         }
         assert!(!Notifier::default().is_enabled());
-    }
-
-    #[test]
-    fn send_failures_are_errors_not_panics() {
-        let dir = tempfile::tempdir().unwrap();
-        let gone = Notifier::with_socket(dir.path().join("nobody-listens"));
-        assert!(matches!(gone.ready(), Err(NotifyError::Send { .. })));
-        let relative = parse_env(Some("run/notify"), None, None, 1);
-        assert!(relative.is_enabled());
-        let e = relative.ready().unwrap_err();
-        assert!(matches!(e, NotifyError::UnsupportedAddress(_)));
-        assert!(e.to_string().contains("run/notify"));
-        let too_long = Notifier::with_socket(format!("/{}", "x".repeat(200)));
-        assert!(matches!(too_long.ready(), Err(NotifyError::Address { .. })));
     }
 
     #[test]

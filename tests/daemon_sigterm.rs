@@ -115,10 +115,11 @@ dir = {captures:?}
             let mut buf = [0u8; 4096];
             while !stop.load(std::sync::atomic::Ordering::Relaxed) {
                 if let Ok(n) = notify_sock.recv(&mut buf) {
-                    got.push((
-                        Instant::now(),
-                        String::from_utf8_lossy(&buf[..n]).into_owned(),
-                    ));
+                    // One datagram holds newline-separated assignments, as systemd reads them.
+                    let at = Instant::now();
+                    for line in String::from_utf8_lossy(&buf[..n]).lines() {
+                        got.push((at, line.to_owned()));
+                    }
                 }
             }
             got

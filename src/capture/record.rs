@@ -6,8 +6,10 @@ use crate::core::Estimate;
 use serde::{Deserialize, Deserializer, Serialize};
 
 /// How the picture was taken (DESIGN §2, capture modes).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+/// The same names in the manifest (serde), the config and on the command line (clap).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "snake_case")]
+#[value(rename_all = "snake_case")]
 pub enum CaptureMode {
     /// alfd saved the frame itself; `image` names the file.
     Frame,
@@ -17,6 +19,7 @@ pub enum CaptureMode {
     AutopilotDistance,
     /// A ground station (or other allowed system) asked for it: IMAGE_START_CAPTURE or
     /// DO_DIGICAM_CONTROL; `requested_by` names the sender. Never a configured mode.
+    #[value(skip)]
     Command,
 }
 

@@ -1,64 +1,26 @@
 //! Opening the devices a config names, for `alfd run`: V4L2 (feature `v4l2`),
 //! a recording (once as recorded, or live: paced, re-stamped, looping), or the
-//! synthetic cameras following the telemetry pose (a synthetic camera at the
-//! simulator's truth only exists inside `alfd sim`).
+//! synthetic cameras following the telemetry pose (feature `sim`; a synthetic
+//! camera at the simulator's truth only exists inside `alfd sim`).
 
 use super::run::{Devices, Frames};
-use crate::config::{Config, SimPose, SourceConfig, SourceKind};
-use crate::core::Intrinsics;
+use crate::config::{Config, SourceConfig, SourceKind};
 use crate::link::LinkHandle;
-use crate::render::SensorModel;
-use crate::scene::Scene;
 use crate::source::recorded::Recording;
-use crate::source::synthetic::{CameraPose, MonotonicClock, SyntheticColor, SyntheticDepth};
 use crate::source::{DepthSource, FrameSource};
 use std::path::Path;
 use std::sync::{Arc, OnceLock};
+use synthetic::Synthetic;
+#[cfg(feature = "sim")]
+pub use synthetic::{scene_camera_pose, telemetry_pose};
 
 /// Where the telemetry pose comes from once the link exists.
 pub type LinkSlot = Arc<OnceLock<LinkHandle>>;
 
-pub(crate) fn intrinsics(s: &SourceConfig) -> Result<Intrinsics, String> {
-    Intrinsics::from_hfov_deg(s.width, s.height, s.hfov_deg, s.principal_px)
+#[cfg(any(feature = "sim", feature = "v4l2"))]
+pub(crate) fn intrinsics(s: &SourceConfig) -> Result<crate::core::Intrinsics, String> {
+    crate::core::Intrinsics::from_hfov_deg(s.width, s.height, s.hfov_deg, s.principal_px)
         .map_err(|e| format!("intrinsics: {e}"))
-}
-
-/// The synthetic camera at a local NED position and the vehicle's roll, pitch,
-/// yaw (`rpy_rad`): the scene's survey line starts at its `start_x_m` and heads
-/// north along +x; west is +y; up is +z.
-pub fn scene_camera_pose(
-    scene: &Scene,
-    mount_pitch_rad: f64,
-    ned: [f64; 3],
-    rpy_rad: [f64; 3],
-) -> CameraPose {
-    let position_m = [
-        scene.survey.start_x_m + ned[0],
-        scene.survey.y_m - ned[1],
-        -ned[2],
-    ];
-    CameraPose::on_vehicle(position_m, rpy_rad, mount_pitch_rad)
-}
-
-/// The synthetic camera's pose from the telemetry ([`scene_camera_pose`]), or
-/// `None` while there is none.
-pub fn telemetry_pose(
-    scene: Arc<Scene>,
-    mount_pitch_rad: f64,
-    slot: LinkSlot,
-    rt: tokio::runtime::Handle,
-) -> impl FnMut(u64) -> Option<CameraPose> + Send {
-    move |t: u64| {
-        let link = slot.get()?;
-        let p = rt.block_on(link.pose_at_mono_ns(t)).ok()?;
-        let (yaw, pitch, roll) = p.q.to_euler(glam::EulerRot::ZYX);
-        Some(scene_camera_pose(
-            &scene,
-            mount_pitch_rad,
-            p.pos_ned_m.to_array(),
-            [roll, pitch, yaw],
-        ))
-    }
 }
 
 /// Opens what `config` names. Errors name the section and what is wrong.
@@ -70,18 +32,7 @@ pub fn open(
     if let Some(note) = config.unsupported_by_build() {
         return Err(note);
     }
-    let scene = match &config.sim_scene {
-        Some(p) if uses(config, SourceKind::Synthetic) => {
-            if config.sim_pose == SimPose::Truth {
-                return Err(
-                    "sim.pose = \"truth\" needs the simulator's truth, which only `alfd sim` has: use \"telemetry\" with `alfd run`"
-                        .into(),
-                );
-            }
-            Some(Arc::new(Scene::load(p).map_err(|e| e.to_string())?))
-        }
-        _ => None,
-    };
+    let synthetic = Synthetic::open(config, slot, rt)?;
     let d = &config.depth;
     let depth: Option<Box<dyn DepthSource>> = match d.kind {
         SourceKind::None => None,
@@ -92,27 +43,7 @@ pub fn open(
                 .ok_or("depth.dir: a recorded source needs it")?;
             Some(recorded_depth(dir, d.replay_live).map_err(|e| format!("depth.dir: {e}"))?)
         }
-        SourceKind::Synthetic => {
-            let scene = scene
-                .clone()
-                .ok_or("sim.scene: needed by a synthetic depth source")?;
-            let intr = intrinsics(d).map_err(|e| format!("depth: {e}"))?;
-            let sensor = SensorModel {
-                scale_m: d.scale_m,
-                noise_per_m: d.noise_per_m,
-                dropout: d.dropout,
-                max_range_m: d.max_range_m,
-                seed: 1,
-            };
-            Some(Box::new(SyntheticDepth::new(
-                scene.clone(),
-                intr,
-                sensor,
-                d.fps,
-                telemetry_pose(scene, d.mount_pitch_rad, slot.clone(), rt.clone()),
-                MonotonicClock,
-            )))
-        }
+        SourceKind::Synthetic => Some(synthetic.depth(d)?),
         SourceKind::V4l2 => open_v4l2_depth(d)?,
     };
     let c = &config.camera;
@@ -127,17 +58,7 @@ pub fn open(
                 recorded_color(dir, c.replay_live).map_err(|e| format!("camera.dir: {e}"))?,
             ))
         }
-        SourceKind::Synthetic => {
-            let scene = scene.ok_or("sim.scene: needed by a synthetic camera")?;
-            let intr = Intrinsics::from_hfov_deg(c.width, c.height, d.hfov_deg, None)
-                .map_err(|e| format!("camera: {e}"))?;
-            Some(Frames::AtInstant(Box::new(SyntheticColor::new(
-                scene.clone(),
-                intr,
-                1,
-                telemetry_pose(scene, d.mount_pitch_rad, slot, rt),
-            ))))
-        }
+        SourceKind::Synthetic => Some(synthetic.color(c, d)?),
         SourceKind::V4l2 => open_v4l2_color(c)?,
     };
     Ok(Devices {
@@ -165,10 +86,6 @@ fn recorded_color(dir: &Path, live: bool) -> Result<Box<dyn FrameSource>, String
     } else {
         Box::new(rec)
     })
-}
-
-fn uses(c: &Config, kind: SourceKind) -> bool {
-    c.camera.kind == kind || c.depth.kind == kind
 }
 
 #[cfg(feature = "v4l2")]
@@ -200,4 +117,154 @@ fn open_v4l2_color(c: &SourceConfig) -> Result<Option<Frames>, String> {
 #[cfg(not(feature = "v4l2"))]
 fn open_v4l2_color(_: &SourceConfig) -> Result<Option<Frames>, String> {
     Err("camera.source = \"v4l2\" needs a build with `--features v4l2`".into())
+}
+
+/// The synthetic cameras of `alfd run`, rendering the config's scene at the
+/// telemetry pose.
+#[cfg(feature = "sim")]
+mod synthetic {
+    use super::{intrinsics, Frames, LinkSlot};
+    use crate::config::{Config, SimPose, SourceConfig, SourceKind};
+    use crate::core::Intrinsics;
+    use crate::render::SensorModel;
+    use crate::scene::Scene;
+    use crate::source::synthetic::{CameraPose, MonotonicClock, SyntheticColor, SyntheticDepth};
+    use crate::source::DepthSource;
+    use std::sync::Arc;
+
+    /// The synthetic camera at a local NED position and the vehicle's roll, pitch,
+    /// yaw (`rpy_rad`): the scene's survey line starts at its `start_x_m` and heads
+    /// north along +x; west is +y; up is +z.
+    pub fn scene_camera_pose(
+        scene: &Scene,
+        mount_pitch_rad: f64,
+        ned: [f64; 3],
+        rpy_rad: [f64; 3],
+    ) -> CameraPose {
+        let position_m = [
+            scene.survey.start_x_m + ned[0],
+            scene.survey.y_m - ned[1],
+            -ned[2],
+        ];
+        CameraPose::on_vehicle(position_m, rpy_rad, mount_pitch_rad)
+    }
+
+    /// The synthetic camera's pose from the telemetry ([`scene_camera_pose`]), or
+    /// `None` while there is none.
+    pub fn telemetry_pose(
+        scene: Arc<Scene>,
+        mount_pitch_rad: f64,
+        slot: LinkSlot,
+        rt: tokio::runtime::Handle,
+    ) -> impl FnMut(u64) -> Option<CameraPose> + Send {
+        move |t: u64| {
+            let link = slot.get()?;
+            let p = rt.block_on(link.pose_at_mono_ns(t)).ok()?;
+            let (yaw, pitch, roll) = p.q.to_euler(glam::EulerRot::ZYX);
+            Some(scene_camera_pose(
+                &scene,
+                mount_pitch_rad,
+                p.pos_ned_m.to_array(),
+                [roll, pitch, yaw],
+            ))
+        }
+    }
+
+    fn uses(c: &Config, kind: SourceKind) -> bool {
+        c.camera.kind == kind || c.depth.kind == kind
+    }
+
+    /// The scene the synthetic sources render, loaded once for both.
+    pub struct Synthetic {
+        scene: Option<Arc<Scene>>,
+        slot: LinkSlot,
+        rt: tokio::runtime::Handle,
+    }
+
+    impl Synthetic {
+        pub fn open(
+            config: &Config,
+            slot: LinkSlot,
+            rt: tokio::runtime::Handle,
+        ) -> Result<Self, String> {
+            let scene = match &config.sim_scene {
+                Some(p) if uses(config, SourceKind::Synthetic) => {
+                    if config.sim_pose == SimPose::Truth {
+                        return Err(
+                            "sim.pose = \"truth\" needs the simulator's truth, which only `alfd sim` has: use \"telemetry\" with `alfd run`"
+                                .into(),
+                        );
+                    }
+                    Some(Arc::new(Scene::load(p).map_err(|e| e.to_string())?))
+                }
+                _ => None,
+            };
+            Ok(Synthetic { scene, slot, rt })
+        }
+
+        pub fn depth(&self, d: &SourceConfig) -> Result<Box<dyn DepthSource>, String> {
+            let scene = self
+                .scene
+                .clone()
+                .ok_or("sim.scene: needed by a synthetic depth source")?;
+            let intr = intrinsics(d).map_err(|e| format!("depth: {e}"))?;
+            let sensor = SensorModel {
+                scale_m: d.scale_m,
+                noise_per_m: d.noise_per_m,
+                dropout: d.dropout,
+                max_range_m: d.max_range_m,
+                seed: 1,
+            };
+            Ok(Box::new(SyntheticDepth::new(
+                scene.clone(),
+                intr,
+                sensor,
+                d.fps,
+                telemetry_pose(scene, d.mount_pitch_rad, self.slot.clone(), self.rt.clone()),
+                MonotonicClock,
+            )))
+        }
+
+        pub fn color(&self, c: &SourceConfig, d: &SourceConfig) -> Result<Frames, String> {
+            let scene = self
+                .scene
+                .clone()
+                .ok_or("sim.scene: needed by a synthetic camera")?;
+            let intr = Intrinsics::from_hfov_deg(c.width, c.height, d.hfov_deg, None)
+                .map_err(|e| format!("camera: {e}"))?;
+            Ok(Frames::AtInstant(Box::new(SyntheticColor::new(
+                scene.clone(),
+                intr,
+                1,
+                telemetry_pose(scene, d.mount_pitch_rad, self.slot.clone(), self.rt.clone()),
+            ))))
+        }
+    }
+}
+
+/// The lean build has no renderer: `Config::unsupported_by_build` refuses a
+/// synthetic source before these are reached.
+#[cfg(not(feature = "sim"))]
+mod synthetic {
+    use super::{Frames, LinkSlot};
+    use crate::config::{Config, SourceConfig};
+    use crate::source::DepthSource;
+
+    const LACKS: &str = "a synthetic source needs a build with the default features (`sim`)";
+
+    pub struct Synthetic;
+
+    impl Synthetic {
+        pub fn open(_: &Config, _: LinkSlot, _: tokio::runtime::Handle) -> Result<Self, String> {
+            Ok(Synthetic)
+        }
+
+        pub fn depth(&self, _: &SourceConfig) -> Result<Box<dyn DepthSource>, String> {
+            Err(LACKS.into())
+        }
+
+        pub fn color(&self, _: &SourceConfig, _: &SourceConfig) -> Result<Frames, String> {
+            Err(LACKS.into())
+        }
+    }
 }

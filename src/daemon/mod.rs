@@ -11,6 +11,7 @@ pub mod latency;
 pub mod outbox;
 pub mod run;
 pub mod shutdown;
+#[cfg(feature = "sim")]
 pub mod sim;
 pub mod step;
 pub mod writer;

@@ -1,6 +1,6 @@
 //! Frame and depth sources behind two narrow traits, so the flight, the bench
 //! and the tests run the same code paths: recorded (replay), V4L2 (feature
-//! `v4l2`) and, in a later part, the synthetic renderer. Every frame carries its
+//! `v4l2`) and the synthetic renderer (feature `sim`). Every frame carries its
 //! time of validity on the companion's monotonic clock, as V4L2 stamps it.
 //!
 //! Sources are blocking: each runs on its own thread (one task per device),
@@ -9,6 +9,7 @@
 pub mod decode;
 pub mod recorded;
 pub mod select;
+#[cfg(feature = "sim")]
 pub mod synthetic;
 #[cfg(feature = "v4l2")]
 pub mod v4l2;
@@ -140,6 +141,30 @@ impl FrameAt for FrameRing {
             seq: raw.seq,
             data,
         })
+    }
+}
+
+/// Time for a source that paces itself: the monotonic clock in flight, a
+/// stepped clock in tests.
+pub trait Clock: Send {
+    fn now_ns(&self) -> u64;
+    /// Returns once `now_ns() >= t_ns`.
+    fn wait_until(&self, t_ns: u64);
+}
+
+/// CLOCK_MONOTONIC, sleeping the thread.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct MonotonicClock;
+
+impl Clock for MonotonicClock {
+    fn now_ns(&self) -> u64 {
+        crate::link::mono_ns()
+    }
+    fn wait_until(&self, t_ns: u64) {
+        let now = self.now_ns();
+        if t_ns > now {
+            std::thread::sleep(std::time::Duration::from_nanos(t_ns - now));
+        }
     }
 }
 

@@ -11,7 +11,7 @@
 //! [`LiveReplay`] paces them in real time, re-stamped and looping, as a stand-in
 //! for a live camera. Both read and decode each frame's file when it is due.
 
-use super::synthetic::{Clock, MonotonicClock};
+use super::{Clock, MonotonicClock};
 use super::{ColorImage, DepthSource, FrameSource, RawColor, SourceError, Stamped};
 use crate::core::{DepthData, DepthImage, Intrinsics};
 use serde::{Deserialize, Serialize};

@@ -3,6 +3,7 @@
 //! works against any autopilot), with a RealSense-like sensor model. The clock
 //! is injected, so tests and replays run without waiting.
 
+pub use super::{Clock, MonotonicClock};
 use super::{ColorImage, DepthSource, FrameAt, SourceError, Stamped};
 use crate::capture::export::{body_to_ned, camera_to_body};
 use crate::core::{DepthImage, Intrinsics};
@@ -85,30 +86,6 @@ pub trait PoseAt: Send {
 impl<F: FnMut(u64) -> Option<CameraPose> + Send> PoseAt for F {
     fn pose_at(&mut self, mono_ns: u64) -> Option<CameraPose> {
         self(mono_ns)
-    }
-}
-
-/// Time for a source that paces itself: the monotonic clock in flight, a
-/// stepped clock in tests.
-pub trait Clock: Send {
-    fn now_ns(&self) -> u64;
-    /// Returns once `now_ns() >= t_ns`.
-    fn wait_until(&self, t_ns: u64);
-}
-
-/// CLOCK_MONOTONIC, sleeping the thread.
-#[derive(Debug, Clone, Copy, Default)]
-pub struct MonotonicClock;
-
-impl Clock for MonotonicClock {
-    fn now_ns(&self) -> u64 {
-        crate::link::mono_ns()
-    }
-    fn wait_until(&self, t_ns: u64) {
-        let now = self.now_ns();
-        if t_ns > now {
-            std::thread::sleep(std::time::Duration::from_nanos(t_ns - now));
-        }
     }
 }
 

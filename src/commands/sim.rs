@@ -1,126 +1,18 @@
-//! The daemon's subcommands, `alfd run` and `alfd sim`, and the log set-up:
-//! a tokio runtime, SIGTERM and Ctrl-C as the one shutdown path, the summary.
+//! `alfd sim`: the daemon on the simulated autopilot over a synthetic scene,
+//! judged against the truth (feature `sim`).
 
-use crate::cli::bad;
+use super::{bad, emit, runtime, termination};
 use alfd::capture::CaptureMode;
-use alfd::config::{Config, SimPose};
+use alfd::config::SimPose;
 use alfd::core::{Model, Profile};
-use alfd::daemon::devices::{self, LinkSlot};
-use alfd::daemon::run::{next_flight_dir, run, RunOptions, RunReport};
 use alfd::daemon::sim::{run_sim, SimArgs};
-use alfd::notify::Notifier;
-use anyhow::{Context, Result};
+use anyhow::Result;
 use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum LogFormat {
-    /// One line per event; colours only on a terminal (journald-friendly).
-    Text,
-    /// One JSON object per line.
-    Json,
-}
-
-/// Logs to stderr: plain text for journald (no colours, no timestamps when
-/// journald adds its own), or JSON lines for machines.
-pub fn init_logs(format: LogFormat, level: tracing::Level) {
-    let journald = std::env::var_os("JOURNAL_STREAM").is_some();
-    let builder = tracing_subscriber::fmt()
-        .with_writer(std::io::stderr)
-        .with_max_level(level)
-        .with_target(false);
-    let _ = match format {
-        LogFormat::Json => builder.json().try_init(),
-        LogFormat::Text if journald => builder.with_ansi(false).without_time().try_init(),
-        LogFormat::Text => builder
-            .with_ansi(std::io::stderr().is_terminal())
-            .try_init(),
-    };
-}
-
-fn runtime() -> Result<tokio::runtime::Runtime> {
-    tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .context("starting the async runtime")
-}
-
-/// Resolves on SIGTERM or Ctrl-C.
-async fn termination() {
-    let term = async {
-        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
-            Ok(mut s) => {
-                s.recv().await;
-            }
-            Err(_) => std::future::pending::<()>().await,
-        }
-    };
-    tokio::select! {
-        _ = term => {}
-        _ = tokio::signal::ctrl_c() => {}
-    }
-}
-
 #[derive(clap::Args)]
-pub struct RunArgs {
-    /// The daemon's config file (see configs/).
-    #[arg(long)]
-    config: PathBuf,
-}
-
-pub fn run_daemon(a: RunArgs) -> Result<ExitCode> {
-    let config = Config::load(&a.config).map_err(|e| bad(e.to_string()))?;
-    if config.link.is_none() {
-        return Err(bad(format!(
-            "{}: [mavlink]: the daemon needs a link to the flight controller",
-            a.config.display()
-        )));
-    }
-    let rt = runtime()?;
-    let report = rt.block_on(async {
-        let slot = LinkSlot::default();
-        let devices = devices::open(&config, slot.clone(), tokio::runtime::Handle::current())
-            .map_err(|e| bad(format!("{}: {e}", a.config.display())))?;
-        let flight_dir = next_flight_dir(&config.capture.dir);
-        tracing::info!("captures go to {}", flight_dir.display());
-        let options = RunOptions {
-            flight_dir,
-            store: None,
-            keep_samples: false,
-            notifier: Notifier::from_env(),
-            on_sample: None,
-            on_link: Some(Box::new(move |l| {
-                let _ = slot.set(l.clone());
-            })),
-        };
-        run(config, devices, options, termination())
-            .await
-            .map_err(anyhow::Error::from)
-    })?;
-    print_report(&report);
-    rt.shutdown_timeout(std::time::Duration::from_millis(200));
-    Ok(ExitCode::SUCCESS)
-}
-
-fn print_report(r: &RunReport) {
-    tracing::info!(
-        "stopped: {} captures in {}, {} depth frames ({} skipped while busy, {} bad), {} errors",
-        r.records.len(),
-        r.flight_dir.display(),
-        r.depth_frames,
-        r.frames_skipped_busy,
-        r.frames_bad,
-        r.capture_errors.len()
-    );
-    for e in &r.capture_errors {
-        tracing::warn!("{e}");
-    }
-}
-
-#[derive(clap::Args)]
-pub struct SimCliArgs {
+pub struct Args {
     /// Scene file (default: the built-in district, scenes/district.toml).
     #[arg(long)]
     scene: Option<PathBuf>,
@@ -140,9 +32,9 @@ pub struct SimCliArgs {
     width: usize,
     #[arg(long, default_value_t = 480)]
     height: usize,
-    /// frame, camera_command or autopilot_distance.
-    #[arg(long, default_value = "frame")]
-    mode: String,
+    /// How captures are taken.
+    #[arg(long, value_enum, default_value_t = CaptureMode::Frame)]
+    mode: CaptureMode,
     /// quality (the default), occlusion, mmds, sspa or fixed.
     #[arg(long)]
     model: Option<String>,
@@ -152,9 +44,9 @@ pub struct SimCliArgs {
     /// Also measure each frame against the last capture ([trigger] closed_loop).
     #[arg(long)]
     closed_loop: bool,
-    /// Render at the simulator's truth, or at the pose alfd believes.
-    #[arg(long, default_value = "truth")]
-    pose: String,
+    /// Where the synthetic camera renders.
+    #[arg(long, value_enum, default_value_t = SimPose::Truth)]
+    pose: SimPose,
     /// Forward MAVLink to a ground station: udpout:HOST:PORT.
     #[arg(long)]
     gcs: Option<String>,
@@ -165,17 +57,7 @@ pub struct SimCliArgs {
     no_progress: bool,
 }
 
-pub fn sim(a: SimCliArgs) -> Result<ExitCode> {
-    let mode = match a.mode.as_str() {
-        "frame" => CaptureMode::Frame,
-        "camera_command" => CaptureMode::CameraCommand,
-        "autopilot_distance" => CaptureMode::AutopilotDistance,
-        m => {
-            return Err(bad(format!(
-                "--mode {m}: use frame, camera_command or autopilot_distance"
-            )))
-        }
-    };
+pub fn run(a: Args) -> Result<ExitCode> {
     let model = match &a.model {
         Some(m) => Some(Model::parse(m).ok_or_else(|| {
             bad(format!(
@@ -190,11 +72,6 @@ pub fn sim(a: SimCliArgs) -> Result<ExitCode> {
                 .ok_or_else(|| bad(format!("--profile {p}: use lightfield or mapping")))?,
         ),
         None => None,
-    };
-    let pose = match a.pose.as_str() {
-        "truth" => SimPose::Truth,
-        "telemetry" => SimPose::Telemetry,
-        p => return Err(bad(format!("--pose {p}: use truth or telemetry"))),
     };
     for (name, v, max) in [
         ("--speed-mps", a.speed_mps, 50.0),
@@ -222,11 +99,11 @@ pub fn sim(a: SimCliArgs) -> Result<ExitCode> {
         fps: a.fps,
         width: a.width,
         height: a.height,
-        mode,
+        mode: a.mode,
         model,
         profile,
         closed_loop: a.closed_loop,
-        pose,
+        pose: a.pose,
         gcs: a.gcs,
         progress: !a.no_progress && std::io::stderr().is_terminal(),
         length_m: a.length_m,
@@ -279,7 +156,7 @@ pub fn sim(a: SimCliArgs) -> Result<ExitCode> {
     for e in &r.capture_errors {
         text.push_str(&format!("error           {e}\n"));
     }
-    crate::cli::emit(&text)?;
+    emit(&text)?;
     rt.shutdown_timeout(std::time::Duration::from_millis(200));
     Ok(ExitCode::SUCCESS)
 }

@@ -1,0 +1,94 @@
+//! `alfd tradeoff`: error against run time of every decimation level and model.
+
+use super::{bad, emit, load_config};
+use alfd::core::{Intrinsics, Model};
+use alfd::depthio::{read_depth, DepthFormat, ReadOptions};
+use alfd::tradeoff;
+use anyhow::Result;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Frame width of the synthetic reference scenes.
+    #[arg(long, default_value_t = 640)]
+    width: usize,
+    /// Frame height of the synthetic reference scenes.
+    #[arg(long, default_value_t = 480)]
+    height: usize,
+    /// Timing repeats per frame and level (the median is kept).
+    #[arg(long, default_value_t = 15)]
+    repeats: usize,
+    /// Also measure on these self-describing depth maps (16-bit PNG or PFM).
+    #[arg(long)]
+    depth: Vec<PathBuf>,
+    /// Camera pitch of the --depth maps, degrees.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    pitch_deg: f64,
+    /// Horizontal field of view for --depth maps, degrees.
+    #[arg(long, default_value_t = 69.0)]
+    hfov_deg: f64,
+    /// Config file.
+    #[arg(long)]
+    config: Option<PathBuf>,
+}
+
+pub fn run(a: Args) -> Result<ExitCode> {
+    let cfg = load_config(&a.config)?;
+    if a.width == 0 || a.height == 0 {
+        return Err(bad("--width and --height must be at least 1"));
+    }
+    let mut frames = tradeoff::reference_frames(a.width, a.height, 69.0);
+    for path in &a.depth {
+        let opts = ReadOptions {
+            format: DepthFormat::from_path(path),
+            ..ReadOptions::default()
+        };
+        let image = read_depth(path, &opts).map_err(|e| bad(e.to_string()))?;
+        let intrinsics = Intrinsics::from_hfov_deg(image.width(), image.height(), a.hfov_deg, None)
+            .map_err(|e| bad(format!("--hfov-deg: {e}")))?;
+        frames.push(tradeoff::Frame {
+            name: path
+                .file_name()
+                .map_or("map".into(), |n| n.to_string_lossy().into_owned()),
+            image,
+            intrinsics,
+            pitch_rad: a.pitch_deg.to_radians(),
+        });
+    }
+    let models = [Model::Mmds, Model::Sspa, Model::Occlusion, Model::Quality];
+    let rows = tradeoff::measure(
+        &frames,
+        &cfg.estimator,
+        &models,
+        &alfd::core::params::DECIMATION_LEVELS,
+        a.repeats,
+    );
+    emit(&format!(
+        "Spacing error of each decimation level against full resolution, and time per frame \
+         ({} frames of {}x{}, median of {} runs; score left out).\n\n{}",
+        frames.len(),
+        a.width,
+        a.height,
+        a.repeats,
+        tradeoff::markdown(&frames, &rows)
+    ))?;
+    let mut mapping = cfg.estimator.clone();
+    mapping.quality = alfd::core::Profile::Mapping.targets();
+    emit(&format!(
+        "\nThe visibility sweep's sampling (quality model, decimation 1; spacing error against the sweep on every sample).\n\nlightfield profile:\n\n{}\nmapping profile:\n\n{}",
+        tradeoff::visibility_markdown(
+            &frames,
+            &cfg.estimator,
+            &[usize::MAX, 160_000, 80_000, 40_000, 20_000, 10_000],
+            a.repeats
+        ),
+        tradeoff::visibility_markdown(
+            &frames,
+            &mapping,
+            &[usize::MAX, 160_000, 80_000, 40_000, 20_000, 10_000],
+            a.repeats
+        )
+    ))?;
+    Ok(ExitCode::SUCCESS)
+}
