@@ -79,6 +79,18 @@ fn bench(c: &mut Criterion) {
                 })
             });
         }
+        // `decimation = "auto"` in steady state: one calibration (every level, full
+        // resolution included) per AUTO_RECALIBRATE_FRAMES frames, the chosen level between.
+        let mut est_auto = Estimator::new(EstimatorParams {
+            decimation: alfd::core::Decimation::Auto {
+                budget: 0.05,
+                levels: alfd::core::params::DECIMATION_LEVELS.to_vec(),
+            },
+            ..params.clone()
+        });
+        g.bench_function("estimate_auto_steady", |b| {
+            b.iter(|| est_auto.estimate(black_box(&img), &intr, pitch).unwrap())
+        });
         let with_sspa = EstimatorParams {
             with_sspa: true,
             ..params.clone()

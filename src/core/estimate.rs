@@ -332,6 +332,21 @@ pub struct Estimator {
     disparity: Vec<f32>,
     /// The visibility sweep's grid when it is coarser than the estimate's.
     vis_grid: InvGrid,
+    /// `Decimation::Auto`'s level, the frame size it was calibrated on and the frames
+    /// estimated at it since.
+    auto: Option<AutoLevel>,
+}
+
+/// Frames `Decimation::Auto` estimates at its calibrated level before calibrating again (a
+/// second at 30 fps): calibrating estimates at every level, full resolution included, so
+/// doing it on every frame would cost more than never decimating.
+pub const AUTO_RECALIBRATE_FRAMES: u32 = 30;
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct AutoLevel {
+    level: usize,
+    size: (usize, usize),
+    frames: u32,
 }
 
 impl Estimator {
@@ -344,6 +359,7 @@ impl Estimator {
             selector: Selector::default(),
             disparity: Vec::new(),
             vis_grid: InvGrid::default(),
+            auto: None,
         }
     }
 
@@ -357,7 +373,9 @@ impl Estimator {
         self.params.track_axis = axis;
     }
 
-    /// The estimate at the configured decimation (`Auto` calibrates on this frame).
+    /// The estimate at the configured decimation. `Auto` calibrates on the first frame,
+    /// every [`AUTO_RECALIBRATE_FRAMES`] frames after, on a new frame size and whenever the
+    /// calibrated level gives no estimate; the choice is returned on the frames it was made.
     pub fn estimate(
         &mut self,
         image: &DepthImage,
@@ -367,7 +385,26 @@ impl Estimator {
         match self.params.decimation.clone() {
             Decimation::Fixed(n) => Ok((self.estimate_at(image, intr, pitch_rad, n)?, None)),
             Decimation::Auto { budget, levels } => {
+                let size = (image.width(), image.height());
+                if let Some(a) = self
+                    .auto
+                    .filter(|a| a.size == size && a.frames < AUTO_RECALIBRATE_FRAMES)
+                {
+                    let e = self.estimate_at(image, intr, pitch_rad, a.level)?;
+                    if e.is_ok() {
+                        self.auto = Some(AutoLevel {
+                            frames: a.frames + 1,
+                            ..a
+                        });
+                        return Ok((e, None));
+                    }
+                }
                 let (e, c) = self.calibrate(image, intr, pitch_rad, budget, &levels)?;
+                self.auto = Some(AutoLevel {
+                    level: c.level,
+                    size,
+                    frames: 0,
+                });
                 Ok((e, Some(c)))
             }
         }

@@ -610,6 +610,35 @@ fn auto_decimation_picks_the_coarsest_level_within_budget() {
 }
 
 #[test]
+fn auto_decimation_calibrates_once_a_second_not_on_every_frame() {
+    let intr = Intrinsics::from_hfov_deg(320, 240, 69.0, None).unwrap();
+    let img = stripes(320, 240, 40, 20.0, 40.0);
+    let mut est = Estimator::new(EstimatorParams {
+        decimation: Decimation::Auto {
+            budget: 0.05,
+            levels: DECIMATION_LEVELS.to_vec(),
+        },
+        ..no_score()
+    });
+    let (first, choice) = est.estimate(&img, &intr, 0.0).unwrap();
+    let level = choice.expect("the first frame calibrates").level;
+    assert_eq!(first.decimation, level);
+    // The next frames reuse the level (one estimate each), then it is calibrated again.
+    for k in 0..AUTO_RECALIBRATE_FRAMES {
+        let (e, c) = est.estimate(&img, &intr, 0.0).unwrap();
+        assert!(c.is_none(), "frame {k} calibrated again");
+        assert_eq!(e.decimation, level);
+        assert_eq!(e.spacing.permissible_m, first.spacing.permissible_m);
+    }
+    assert!(est.estimate(&img, &intr, 0.0).unwrap().1.is_some());
+    // A new frame size is calibrated at once.
+    let intr2 = Intrinsics::from_hfov_deg(160, 120, 69.0, None).unwrap();
+    let small = stripes(160, 120, 20, 20.0, 40.0);
+    assert!(est.estimate(&small, &intr2, 0.0).unwrap().1.is_some());
+    assert!(est.estimate(&small, &intr2, 0.0).unwrap().1.is_none());
+}
+
+#[test]
 fn size_mismatch_is_a_calling_error() {
     let intr = Intrinsics::from_hfov_deg(10, 10, 60.0, None).unwrap();
     let img = metres(5, 2, vec![1.0; 10]);
