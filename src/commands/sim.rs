@@ -136,6 +136,32 @@ pub fn run(a: Args) -> Result<ExitCode> {
         r.frames_bad,
         r.estimator_busy_ns as f64 * 1e-6 / r.samples.len().max(1) as f64
     ));
+    // A capture logged without its image says so in the manifest; the summary counts them,
+    // so a loaded machine's lost images are not a surprise at reconstruction.
+    let with_image = r.records.iter().filter(|c| c.image.is_some()).count();
+    let without: Vec<&str> = r
+        .records
+        .iter()
+        .filter_map(|c| c.image_missing.as_deref())
+        .collect();
+    if with_image + without.len() > 0 {
+        text.push_str(&format!(
+            "images saved    {with_image} of {} captures{}\n",
+            r.records.len(),
+            if without.is_empty() {
+                String::new()
+            } else {
+                format!(
+                    "; {} logged without their image (e.g. \"{}\")",
+                    without.len(),
+                    without[0]
+                )
+            }
+        ));
+    }
+    if let Some(l) = &r.latency {
+        text.push_str(&format!("answered        {l}\n"));
+    }
     text.push_str(&format!(
         "images          {:.1} MB, telemetry.tlog {} messages, exports: geo.txt {} lines, transforms.json {} frames\n",
         out.image_bytes as f64 / 1e6,
