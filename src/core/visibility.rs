@@ -709,54 +709,11 @@ mod tests {
         assert!(out.iter().all(|c| c.is_infinite()));
     }
 
-    #[test]
-    fn lifted_tangent_matches_brute_force() {
-        let x: Vec<f64> = (0..40).map(|i| i as f64 * 0.37).collect();
-        let y: Vec<f64> = (0..40)
-            .map(|i| 1.0 + ((i * 7919) % 13) as f64 * 0.1)
-            .collect();
+    /// The sweep on `(x, y)` against the brute-force tangent of every point, each margin
+    /// and direction.
+    fn assert_sweep_is_brute_force(x: &[f64], y: &[f64], margins: &[f64]) {
         let pts: Vec<(f64, f64)> = x.iter().copied().zip(y.iter().copied()).collect();
-        for margin in [0.0, 0.01, 0.2] {
-            for behind in [false, true] {
-                let mut out = Vec::new();
-                sweep(&pts, behind, margin, &mut Vec::new(), &mut out);
-                for i in 0..x.len() {
-                    let yl = y[i] * (1.0 + margin);
-                    let others: Vec<usize> = if behind {
-                        (0..i).collect()
-                    } else {
-                        (i + 1..x.len()).collect()
-                    };
-                    let brute = others
-                        .into_iter()
-                        .filter(|&q| y[q] > yl)
-                        .map(|q| (x[q] - x[i]).abs() / (y[q] - yl))
-                        .fold(f64::INFINITY, f64::min);
-                    assert!(
-                        (out[i] - brute).abs() <= 1e-12 * brute.abs().max(1.0)
-                            || (out[i].is_infinite() && brute.is_infinite()),
-                        "margin {margin} behind {behind} point {i}: sweep {} brute {brute}",
-                        out[i]
-                    );
-                }
-            }
-        }
-    }
-
-    #[test]
-    fn open_ground_exit_matches_brute_force() {
-        // Flat ground with depth noise under the margin, a block and a post:
-        // most points take the early exit (nothing beyond rises above them).
-        let x: Vec<f64> = (0..60).map(|i| i as f64 * 0.21 - 3.0).collect();
-        let y: Vec<f64> = (0..60)
-            .map(|i| match i {
-                12..=15 => 1.6,
-                41 => 1.3,
-                _ => 1.0 + ((i * 7919) % 7) as f64 * 1e-4,
-            })
-            .collect();
-        let pts: Vec<(f64, f64)> = x.iter().copied().zip(y.iter().copied()).collect();
-        for margin in [0.0, 1e-4, 1e-3, 0.5] {
+        for &margin in margins {
             for behind in [false, true] {
                 let mut out = Vec::new();
                 sweep(&pts, behind, margin, &mut Vec::new(), &mut out);
@@ -776,6 +733,30 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn lifted_tangent_matches_brute_force() {
+        let x: Vec<f64> = (0..40).map(|i| i as f64 * 0.37).collect();
+        let y: Vec<f64> = (0..40)
+            .map(|i| 1.0 + ((i * 7919) % 13) as f64 * 0.1)
+            .collect();
+        assert_sweep_is_brute_force(&x, &y, &[0.0, 0.01, 0.2]);
+    }
+
+    #[test]
+    fn open_ground_exit_matches_brute_force() {
+        // Flat ground with depth noise under the margin, a block and a post:
+        // most points take the early exit (nothing beyond rises above them).
+        let x: Vec<f64> = (0..60).map(|i| i as f64 * 0.21 - 3.0).collect();
+        let y: Vec<f64> = (0..60)
+            .map(|i| match i {
+                12..=15 => 1.6,
+                41 => 1.3,
+                _ => 1.0 + ((i * 7919) % 7) as f64 * 1e-4,
+            })
+            .collect();
+        assert_sweep_is_brute_force(&x, &y, &[0.0, 1e-4, 1e-3, 0.5]);
     }
 
     #[test]

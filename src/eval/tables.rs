@@ -526,32 +526,12 @@ pub fn markdown(results: &[SceneResult]) -> String {
     for r in results {
         for (m, model) in METHODS.iter().enumerate() {
             let run = &r.runs[m][1];
-            let wm = |v: Vec<f64>, d: usize| {
-                let w = v.iter().copied().fold(f64::INFINITY, f64::min);
-                let mean = v.iter().sum::<f64>() / v.len().max(1) as f64;
-                format!("{w:.d$} / {mean:.d$}")
-            };
             let _ = writeln!(
                 s,
-                "| {} | {} | {} | {} | {} | {} | {} | {:.4} | {} |",
+                "| {} | {} | {} |",
                 r.name,
                 model.as_str(),
-                run.captures.len(),
-                wm(run.segment_psnr_db.iter().map(|p| p[0]).collect(), 2),
-                wm(run.segment_psnr_db.iter().map(|p| p[1]).collect(), 2),
-                wm(run.segment_ssim.iter().map(|p| p[0]).collect(), 4),
-                wm(run.segment_ssim.iter().map(|p| p[1]).collect(), 4),
-                run.segment_geo
-                    .iter()
-                    .map(|g| g.unseen_worst)
-                    .fold(0.0, f64::max),
-                f(
-                    run.segment_geo
-                        .iter()
-                        .filter_map(|g| g.parallax_worst_px)
-                        .reduce(f64::max),
-                    2
-                ),
+                worst_segment_cells(run)
             );
         }
     }
@@ -572,11 +552,6 @@ pub fn markdown(results: &[SceneResult]) -> String {
         let mmds = r.quality_equal.iter().find(|e| e.method == "mmds");
         for e in &r.quality_equal {
             let run = &e.run;
-            let wm = |v: Vec<f64>, d: usize| {
-                let w = v.iter().copied().fold(f64::INFINITY, f64::min);
-                let mean = v.iter().sum::<f64>() / v.len().max(1) as f64;
-                format!("{w:.d$} / {mean:.d$}")
-            };
             let versus = match (e.method, mmds) {
                 ("quality", Some(m)) => format!(
                     "{:+.2} / {:+.2}",
@@ -587,25 +562,10 @@ pub fn markdown(results: &[SceneResult]) -> String {
             };
             let _ = writeln!(
                 s,
-                "| {} | {} | {} | {} | {} | {} | {} | {:.4} | {} | {} | {} |",
+                "| {} | {} | {} | {} | {} |",
                 r.name,
                 e.method,
-                run.captures.len(),
-                wm(run.segment_psnr_db.iter().map(|p| p[0]).collect(), 2),
-                wm(run.segment_psnr_db.iter().map(|p| p[1]).collect(), 2),
-                wm(run.segment_ssim.iter().map(|p| p[0]).collect(), 4),
-                wm(run.segment_ssim.iter().map(|p| p[1]).collect(), 4),
-                run.segment_geo
-                    .iter()
-                    .map(|g| g.unseen_worst)
-                    .fold(0.0, f64::max),
-                f(
-                    run.segment_geo
-                        .iter()
-                        .filter_map(|g| g.parallax_worst_px)
-                        .reduce(f64::max),
-                    2
-                ),
+                worst_segment_cells(run),
                 e.min_views.map_or("–".into(), |v| v.to_string()),
                 versus,
             );
@@ -656,6 +616,35 @@ pub fn markdown(results: &[SceneResult]) -> String {
     }
     s.push('\n');
     s
+}
+
+/// A run's equal-capture cells: captures, PSNR and SSIM worst / mean over segments per
+/// renderer, worst unseen fraction and worst parallax over its in-between views.
+fn worst_segment_cells(run: &crate::eval::MethodRun) -> String {
+    let wm = |v: Vec<f64>, d: usize| {
+        let w = v.iter().copied().fold(f64::INFINITY, f64::min);
+        let mean = v.iter().sum::<f64>() / v.len().max(1) as f64;
+        format!("{w:.d$} / {mean:.d$}")
+    };
+    format!(
+        "{} | {} | {} | {} | {} | {:.4} | {}",
+        run.captures.len(),
+        wm(run.segment_psnr_db.iter().map(|p| p[0]).collect(), 2),
+        wm(run.segment_psnr_db.iter().map(|p| p[1]).collect(), 2),
+        wm(run.segment_ssim.iter().map(|p| p[0]).collect(), 4),
+        wm(run.segment_ssim.iter().map(|p| p[1]).collect(), 4),
+        run.segment_geo
+            .iter()
+            .map(|g| g.unseen_worst)
+            .fold(0.0, f64::max),
+        f(
+            run.segment_geo
+                .iter()
+                .filter_map(|g| g.parallax_worst_px)
+                .reduce(f64::max),
+            2
+        ),
+    )
 }
 
 /// Relative error of a prediction against the truth; `None` where the truth is below a tenth
