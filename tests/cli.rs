@@ -14,6 +14,23 @@ fn alfd(args: &[&str]) -> Output {
         .expect("alfd runs")
 }
 
+/// `alfd estimate` on the shipped 160×120 roof map, then `extra`.
+fn roof_estimate<'a>(extra: &[&'a str]) -> Vec<&'a str> {
+    let mut a = vec![
+        "estimate",
+        "--depth",
+        "tests/data/roof_160x120.z16",
+        "--width",
+        "160",
+        "--height",
+        "120",
+        "--hfov-deg",
+        "69",
+    ];
+    a.extend_from_slice(extra);
+    a
+}
+
 fn json(args: &[&str]) -> Value {
     let mut a = args.to_vec();
     a.push("--json");
@@ -54,19 +71,7 @@ fn rejects(args: &[&str], expect: &[&str]) {
 
 #[test]
 fn shipped_roof_map_matches_the_closed_forms() {
-    let v = json(&[
-        "estimate",
-        "--depth",
-        "tests/data/roof_160x120.z16",
-        "--width",
-        "160",
-        "--height",
-        "120",
-        "--hfov-deg",
-        "69",
-        "--model",
-        "occlusion",
-    ]);
+    let v = json(&roof_estimate(&["--model", "occlusion"]));
     assert_eq!(v["status"], "ok");
     // f = 80/tan(34.5°); roof at 20 m, ground at 40 m: Δw = 0.025 1/m.
     let focal = 80.0 / 34.5f64.to_radians().tan();
@@ -122,19 +127,7 @@ fn every_shipped_map_answers_with_the_documented_schema() {
             "--pitch-deg",
             "60",
         ],
-        vec![
-            "estimate",
-            "--depth",
-            "tests/data/roof_160x120.z16",
-            "--width",
-            "160",
-            "--height",
-            "120",
-            "--hfov-deg",
-            "69",
-            "--decimation",
-            "auto",
-        ],
+        roof_estimate(&["--decimation", "auto"]),
     ] {
         let v = json(&args);
         assert_eq!(v["status"], "ok", "{args:?}");
@@ -166,17 +159,7 @@ fn every_shipped_map_answers_with_the_documented_schema() {
 
 #[test]
 fn human_summary_names_the_chosen_spacing_and_its_bound() {
-    let out = alfd(&[
-        "estimate",
-        "--depth",
-        "tests/data/roof_160x120.z16",
-        "--width",
-        "160",
-        "--height",
-        "120",
-        "--hfov-deg",
-        "69",
-    ]);
+    let out = alfd(&roof_estimate(&[]));
     assert!(out.status.success());
     let s = String::from_utf8_lossy(&out.stdout);
     // The default, the quality model: the targets, each one's spacing, the
@@ -190,19 +173,7 @@ fn human_summary_names_the_chosen_spacing_and_its_bound() {
     ] {
         assert!(s.contains(want), "{want:?} missing from:\n{s}");
     }
-    let out = alfd(&[
-        "estimate",
-        "--depth",
-        "tests/data/roof_160x120.z16",
-        "--width",
-        "160",
-        "--height",
-        "120",
-        "--hfov-deg",
-        "69",
-        "--model",
-        "occlusion",
-    ]);
+    let out = alfd(&roof_estimate(&["--model", "occlusion"]));
     let s = String::from_utf8_lossy(&out.stdout);
     assert!(
         s.contains("chosen") && s.contains("bound: occlusion"),
@@ -214,18 +185,7 @@ fn human_summary_names_the_chosen_spacing_and_its_bound() {
 /// target out of range is refused naming the flag's field.
 #[test]
 fn quality_targets_from_the_command_line() {
-    let base = [
-        "estimate",
-        "--depth",
-        "tests/data/roof_160x120.z16",
-        "--width",
-        "160",
-        "--height",
-        "120",
-        "--hfov-deg",
-        "69",
-    ];
-    let v = json(&[&base[..], &["--profile", "mapping"]].concat());
+    let v = json(&roof_estimate(&["--profile", "mapping"]));
     assert_eq!(v["active_bound"], "forward_overlap");
     assert_eq!(v["quality"]["targets"]["profile"], "mapping");
     assert_eq!(v["quality"]["targets"]["views_per_point_min"], 3);
@@ -234,20 +194,19 @@ fn quality_targets_from_the_command_line() {
         0.8,
         1e-9
     ));
-    let v = json(
-        &[
-            &base[..],
-            &["--parallax-px", "off", "--forward-overlap", "0.5"],
-        ]
-        .concat(),
-    );
+    let v = json(&roof_estimate(&[
+        "--parallax-px",
+        "off",
+        "--forward-overlap",
+        "0.5",
+    ]));
     assert!(v["quality"]["targets"]["parallax_px"].is_null());
     assert!(within(
         f(&v, &["quality", "targets", "forward_overlap"]),
         0.5,
         1e-12
     ));
-    let out = alfd(&[&base[..], &["--unseen-fraction-max", "2"]].concat());
+    let out = alfd(&roof_estimate(&["--unseen-fraction-max", "2"]));
     assert_eq!(out.status.code(), Some(2));
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("quality.unseen_fraction_max"), "{err}");

@@ -4,6 +4,8 @@
 //! capture is where the vehicle truly was (not 0°, 0°), nothing is captured before it is
 //! airborne, and the origin's arrival suspends nothing (before, it was a 10 s GPS glitch).
 
+mod tools;
+
 use alfd::capture::{read_manifest, CaptureRecord};
 use firmware_sim::{SimConfig, SimEvent};
 use std::io::{BufRead, BufReader};
@@ -64,35 +66,11 @@ async fn fly(mode: &str) -> Flight {
             }
         });
     }
-    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/tower.toml");
     let captures = dir.path().join("captures");
     let config = dir.path().join("alfd.toml");
     std::fs::write(
         &config,
-        format!(
-            r#"[mavlink]
-address = "{addr}"
-[sim]
-pose = "telemetry"
-scene = "{scene}"
-[depth]
-source = "synthetic"
-width = 160
-height = 120
-scale_m = 0.01
-max_range_m = 300.0
-[camera]
-source = "synthetic"
-width = 160
-height = 120
-[trigger]
-fallback_spacing_m = 1.0
-[capture]
-dir = {captures:?}
-mode = "{mode}"
-"#,
-            addr = sim.address()
-        ),
+        tools::synthetic_tower_config(sim.address(), &captures, mode),
     )
     .unwrap();
     let mut child = Command::new(env!("CARGO_BIN_EXE_alfd"))

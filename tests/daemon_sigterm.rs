@@ -9,6 +9,8 @@
 //! never further apart than the watchdog timeout (systemd would kill it
 //! then), STOPPING=1 at the stop.
 
+mod tools;
+
 use alfd::capture::{read_manifest, tlog};
 use std::io::{BufRead, BufReader};
 use std::os::unix::net::UnixDatagram;
@@ -71,34 +73,11 @@ async fn sigterm_flushes_the_manifest_and_exports_and_exits() {
     sc.survey.wind_m = 0.0;
     sc.survey.wind_deg = 0.0;
     let sim = firmware_sim::start(sc).await.unwrap();
-    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/tower.toml");
     let captures = dir.path().join("captures");
     let config = dir.path().join("alfd.toml");
     std::fs::write(
         &config,
-        format!(
-            r#"[mavlink]
-address = "{addr}"
-[sim]
-pose = "telemetry"
-scene = "{scene}"
-[depth]
-source = "synthetic"
-width = 160
-height = 120
-scale_m = 0.01
-max_range_m = 300.0
-[camera]
-source = "synthetic"
-width = 160
-height = 120
-[trigger]
-fallback_spacing_m = 1.0
-[capture]
-dir = {captures:?}
-"#,
-            addr = sim.address()
-        ),
+        tools::synthetic_tower_config(sim.address(), &captures, "frame"),
     )
     .unwrap();
     // systemd's side of sd_notify: one datagram per state change, stamped on arrival.

@@ -1,9 +1,40 @@
-//! External programs some tests talk to (Python with pymavlink or pycolmap, exiftool): present,
-//! or the test is skipped with a message saying what to install; in CI (`CI` set) a missing one
-//! fails the test instead, so CI never passes by skipping.
+//! What several integration tests share: the external programs some talk to (Python with
+//! pymavlink or pycolmap, exiftool): present, or the test is skipped with a message saying what
+//! to install; in CI (`CI` set) a missing one fails the test instead, so CI never passes by
+//! skipping. And the config of `alfd run` on synthetic cameras over the tower scene.
 #![allow(dead_code)]
 
+use std::path::Path;
 use std::process::{Command, Stdio};
+
+/// `alfd run`'s config against the autopilot at `address`: 160×120 synthetic depth and colour
+/// over `tests/data/tower.toml`, posed from telemetry, captures in `captures` in `mode`.
+pub fn synthetic_tower_config(address: &str, captures: &Path, mode: &str) -> String {
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/tower.toml");
+    format!(
+        r#"[mavlink]
+address = "{address}"
+[sim]
+pose = "telemetry"
+scene = "{scene}"
+[depth]
+source = "synthetic"
+width = 160
+height = 120
+scale_m = 0.01
+max_range_m = 300.0
+[camera]
+source = "synthetic"
+width = 160
+height = 120
+[trigger]
+fallback_spacing_m = 1.0
+[capture]
+dir = {captures:?}
+mode = "{mode}"
+"#
+    )
+}
 
 fn required(present: bool, test: &str, what: &str, install: &str) -> bool {
     if !present {
