@@ -273,10 +273,12 @@ pub fn summarize(
         }
         s.violations += 1;
         s.worst_excess_ratio = max_opt(s.worst_excess_ratio, ratio);
-        let before = within(&pts, a, b - step_limit_m - EPS_M);
-        let seen_before = pts[before.clone()]
+        // The interval's samples before the last opportunity step: what was seen before
+        // the frame that closed it.
+        let cut_m = b - step_limit_m - EPS_M;
+        let seen_before = pts[within(&pts, a, b)]
             .iter()
-            .filter(|p| p.along_m < b - step_limit_m - EPS_M)
+            .take_while(|p| p.along_m < cut_m)
             .map(|p| p.spacing_m)
             .reduce(f64::min);
         if strictly_between(&pts, a, b) == 0 || d <= step_limit_m {
