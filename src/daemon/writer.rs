@@ -209,10 +209,9 @@ pub fn writer_thread(
         let store = st.store_mut();
         let r = log_capture(store, &record, image.as_deref());
         space(store);
+        let finished = mono_ns();
         if image.is_some() && r.is_ok() {
-            // A decaying maximum of frame, encoding and file: one fast image must not talk
-            // the writer into a slow one it has no time for.
-            pace.made(mono_ns().saturating_sub(started));
+            pace.made(finished.saturating_sub(started));
         }
         let result = r.map_err(|e| {
             let error = format!("capture {seq} not logged: {e}");
@@ -223,7 +222,7 @@ pub fn writer_thread(
             instant_ns: record.mono_ns,
             queued_ns,
             started_ns: started,
-            finished_ns: mono_ns(),
+            finished_ns: finished,
             answered_ns: 0,
         };
         if written
