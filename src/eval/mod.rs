@@ -510,24 +510,18 @@ pub fn quality_params() -> EstimatorParams {
     }
 }
 
-/// `ests`: one estimator per [`METHODS`], then the quality model's.
+/// `ests`: one estimator per [`METHODS`], then the quality model's; `intr`: `g`'s.
 fn view_estimate(
     ests: &mut [Estimator],
     img: &crate::core::DepthImage,
     g: &Geometry,
+    intr: &crate::core::Intrinsics,
 ) -> (ViewEstimate, Estimate) {
-    let intr = crate::core::Intrinsics::from_focal_px(
-        g.width,
-        g.height,
-        g.focal_px,
-        Some((g.cx_px, g.cy_px)),
-    )
-    .expect("valid intrinsics");
     let mut v = ViewEstimate::default();
     let (methods, quality) = ests.split_at_mut(METHODS.len());
     for (m, est) in methods.iter_mut().enumerate() {
         let e: Estimate = est
-            .estimate_at(img, &intr, g.pitch_rad, 1)
+            .estimate_at(img, intr, g.pitch_rad, 1)
             .expect("frame and intrinsics match");
         v.chosen_m[m] = e.spacing.chosen_m.filter(|_| e.is_ok());
         v.permissible_m[m] = e.spacing.permissible_m.filter(|_| e.is_ok());
@@ -539,7 +533,7 @@ fn view_estimate(
         }
     }
     let q = quality[0]
-        .estimate_at(img, &intr, g.pitch_rad, 1)
+        .estimate_at(img, intr, g.pitch_rad, 1)
         .expect("frame and intrinsics match");
     v.vis_unseen_m = q.spacing.unseen_m.filter(|_| q.is_ok());
     v.vis_views_m = q.spacing.views_m.filter(|_| q.is_ok());
@@ -881,7 +875,7 @@ pub fn evaluate_scene(
             &opts,
         );
         let z16 = frame.z16(&sensor);
-        let (e, vis) = view_estimate(&mut ests, &z16, &g);
+        let (e, vis) = view_estimate(&mut ests, &z16, &g, &intr_g);
         estimates.push(e);
         visibilities.push(vis);
         kept.push(closedloop::View {
