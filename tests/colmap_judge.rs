@@ -102,11 +102,23 @@ fn colmap_registers_a_short_sim_flight_where_its_transforms_say() {
         reprojection_px < 1.5,
         "mean reprojection error {reprojection_px:.3} px"
     );
-    let centre = number(&report, &["centre_error_fraction", "median"]);
+    // Every camera centre, not only the median: with poses extrapolated past the newest
+    // 10 Hz attitude (0.3 deg off at the end of the start-up turn) the worst was 0.6 to
+    // 4.7 % in five runs; interpolated, 0.45 to 0.54 % in four.
+    let (centre_median, centre_max) = (
+        number(&report, &["centre_error_fraction", "median"]),
+        number(&report, &["centre_error_fraction", "max"]),
+    );
+    println!(
+        "camera centres: median {:.2} %, max {:.2} % of the track",
+        100.0 * centre_median,
+        100.0 * centre_max
+    );
     assert!(
-        centre < 0.01,
-        "median camera centre off by {:.2} % of the track after the similarity",
-        100.0 * centre
+        centre_max < 0.01,
+        "a camera centre off by {:.2} % of the track after the similarity (median {:.2} %)",
+        100.0 * centre_max,
+        100.0 * centre_median
     );
     // The flight starts by turning from the return heading onto the line (firmware-sim's
     // loop): its first captures are the ones whose pictures disagreed with their logged

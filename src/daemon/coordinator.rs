@@ -10,7 +10,7 @@ use super::camera::{
     camera_q_ned, CameraInfo, CameraProtocol, CaptureActivity, CaptureCommand, Captured,
     StorageState,
 };
-use super::step::{capture_record, RecordInputs};
+use super::step::{capture_record, relocate, RecordInputs};
 use crate::capture::{image_file_name, CaptureMode, CaptureRecord, ImageFormat};
 use crate::config::{CameraCommand, Config};
 use crate::core::distset::{DistanceSetter, DistanceSetterParams};
@@ -95,6 +95,28 @@ enum Asked {
     Autopilot { from: Option<(u8, u8)> },
 }
 
+/// A capture waiting for its pose.
+struct Waiting {
+    what: Awaits,
+    mono_ns: u64,
+    answer: Answer,
+}
+
+enum Answer {
+    Pending,
+    Located(Result<Located, String>),
+    /// A decided capture whose pose was already interpolated, in line behind others.
+    NotNeeded,
+}
+
+enum Awaits {
+    /// A capture the coordinator takes itself: its record is made from the pose.
+    Asked(Asked),
+    /// The estimator's decided capture, whose pose reached past the newest telemetry:
+    /// written with the pose interpolated once the sample after it is in, or as decided.
+    Decided(Box<CaptureRecord>),
+}
+
 /// An interval capture a ground station started.
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct Interval {
@@ -142,7 +164,10 @@ pub struct Coordinator {
     last_capture_ne: Option<[f64; 2]>,
     seq: u64,
     next_id: u64,
-    locating: BTreeMap<u64, (Asked, u64)>,
+    /// Captures waiting for their pose, in the order they were taken (ids rise): each is
+    /// numbered and written once it and every capture before it has its answer, so the
+    /// manifest stays in capture order.
+    locating: BTreeMap<u64, Waiting>,
     interval: Option<Interval>,
     /// Captures handed to the writer and not yet answered (the camera is busy).
     writing: usize,
@@ -327,7 +352,8 @@ impl Coordinator {
         match self.config.capture.mode {
             CaptureMode::Frame | CaptureMode::Command => {}
             CaptureMode::CameraCommand => {
-                let seq = self.seq + 1;
+                // Its manifest number: after the captures still waiting for their pose.
+                let seq = self.seq + 1 + self.locating.len() as u64;
                 let sys = self.target_system();
                 let msg = match self.config.capture.command {
                     CameraCommand::ImageStartCapture => command(
@@ -349,8 +375,24 @@ impl Coordinator {
             // The autopilot takes the pictures; its triggers are logged.
             CaptureMode::AutopilotDistance => return out,
         }
-        self.number(&mut record);
-        self.write(&mut out, record);
+        let mono_ns = record.mono_ns;
+        if record.pose_age_ms > 0.0 && self.locating.len() < LOCATING_MAX {
+            self.wait_for_pose(&mut out, Awaits::Decided(Box::new(record)), mono_ns);
+        } else if self.locating.is_empty() {
+            self.number(&mut record);
+            self.write(&mut out, record);
+        } else {
+            // Behind captures still waiting for their pose: in line after them. (With
+            // LOCATING_MAX waiting, one more decided capture goes past the bound rather than
+            // being lost; the estimator decides at most one per frame.)
+            self.next_id += 1;
+            let waiting = Waiting {
+                what: Awaits::Decided(Box::new(record)),
+                mono_ns,
+                answer: Answer::NotNeeded,
+            };
+            self.locating.insert(self.next_id, waiting);
+        }
         out
     }
 
@@ -481,8 +523,17 @@ impl Coordinator {
             self.status(out, MavSeverity::MAV_SEVERITY_ERROR, text);
             return;
         }
+        self.wait_for_pose(out, Awaits::Asked(asked), mono_ns);
+    }
+
+    fn wait_for_pose(&mut self, out: &mut Vec<Action>, what: Awaits, mono_ns: u64) {
         self.next_id += 1;
-        self.locating.insert(self.next_id, (asked, mono_ns));
+        let waiting = Waiting {
+            what,
+            mono_ns,
+            answer: Answer::Pending,
+        };
+        self.locating.insert(self.next_id, waiting);
         self.sync_activity();
         out.push(Action::Locate {
             id: self.next_id,
@@ -494,9 +545,52 @@ impl Coordinator {
     /// (no pose) the ground station hears of the failure.
     pub fn on_located(&mut self, id: u64, located: Result<Located, String>) -> Vec<Action> {
         let mut out = Vec::new();
-        let Some((asked, mono_ns)) = self.locating.remove(&id) else {
+        let Some(w) = self.locating.get_mut(&id) else {
             return out;
         };
+        w.answer = Answer::Located(located);
+        while let Some(e) = self.locating.first_entry() {
+            if matches!(e.get().answer, Answer::Pending) {
+                break;
+            }
+            let w = e.remove();
+            match (w.what, w.answer) {
+                (Awaits::Asked(asked), answer) => {
+                    let located = match answer {
+                        Answer::Located(l) => l,
+                        // Not made: an asked capture always waits for its pose.
+                        _ => Err("no pose was asked for".into()),
+                    };
+                    self.asked_located(&mut out, asked, w.mono_ns, located)
+                }
+                (Awaits::Decided(mut record), answer) => {
+                    if let Answer::Located(Ok(l)) = &answer {
+                        relocate(
+                            &mut record,
+                            &l.pose,
+                            l.boot_us,
+                            &l.local,
+                            self.config.depth.mount_pitch_rad,
+                        );
+                    }
+                    // No later pose: the capture keeps the one it was decided with (its
+                    // pose_age_ms says how far that reached); it is never dropped.
+                    self.number(&mut record);
+                    self.write(&mut out, *record);
+                }
+            }
+        }
+        self.sync_activity();
+        out
+    }
+
+    fn asked_located(
+        &mut self,
+        out: &mut Vec<Action>,
+        asked: Asked,
+        mono_ns: u64,
+        located: Result<Located, String>,
+    ) {
         let l = match located {
             Ok(l) => l,
             Err(e) => {
@@ -508,9 +602,8 @@ impl Coordinator {
                 let text = format!("alfd: {what} without a pose ({e}): not logged");
                 // Said by STATUSTEXT, not by a failed CAMERA_IMAGE_CAPTURED: its index would
                 // be a manifest number no line carries (no pose is ever made up).
-                self.status(&mut out, MavSeverity::MAV_SEVERITY_WARNING, &text);
-                self.sync_activity();
-                return out;
+                self.status(out, MavSeverity::MAV_SEVERITY_WARNING, &text);
+                return;
             }
         };
         let ne = [l.pose.pos_ned_m.x, l.pose.pos_ned_m.y];
@@ -575,8 +668,7 @@ impl Coordinator {
         });
         record.requested_by = requested_by;
         self.number(&mut record);
-        self.write(&mut out, record);
-        out
+        self.write(out, record);
     }
 
     /// The writer's answer for a capture: CAMERA_IMAGE_CAPTURED, a failure when the record
@@ -1061,11 +1153,91 @@ mod tests {
         // The estimator numbered its own capture 1 too: the manifest's number wins.
         let mut decided = crate::capture::record::tests::sample(1);
         decided.image = Some(image_file_name(1, ImageFormat::Png));
+        decided.pose_age_ms = 0.0; // interpolated already: written at once
         let w = writes(&co.on_decided(decided));
         assert_eq!(
             (w[0].seq, w[0].image.as_deref()),
             (2, Some("IMG_000002.png"))
         );
+    }
+
+    /// A decided capture whose pose the link extrapolated: waits for its pose.
+    fn extrapolated_decision(seq: u64) -> CaptureRecord {
+        let mut r = crate::capture::record::tests::sample(seq);
+        r.pose_age_ms = 98.8;
+        r
+    }
+
+    #[test]
+    fn an_extrapolated_decision_is_written_at_the_pose_interpolated_later() {
+        let mut co = coordinator("frame", 0);
+        let decided = extrapolated_decision(1);
+        let a = co.on_decided(decided.clone());
+        assert!(writes(&a).is_empty(), "not written before its pose is in");
+        assert_eq!(locates(&a), vec![(1, decided.mono_ns)]);
+        assert_eq!(co.locating(), 1);
+        let mut l = located(7.0).unwrap();
+        l.pose.q = DQuat::from_rotation_z(0.5);
+        let w = writes(&co.on_located(1, Ok(l)));
+        assert_eq!(w.len(), 1);
+        let r = &w[0];
+        assert_eq!((r.seq, r.mono_ns, r.pose_age_ms), (1, decided.mono_ns, 0.0));
+        assert_eq!((r.position.north_m, r.position.up_m), (7.0, 40.0));
+        assert!((r.attitude.yaw_deg - 0.5_f64.to_degrees()).abs() < 1e-9);
+        assert_eq!(r.time_boot_us, 1_000);
+        // What decided it stays as decided.
+        assert_eq!(r.spacing, decided.spacing);
+        assert_eq!(r.distance_since_last_m, decided.distance_since_last_m);
+        assert_eq!(r.time_unix_us, decided.time_unix_us);
+        assert_eq!(co.locating(), 0);
+    }
+
+    #[test]
+    fn a_decision_with_no_later_pose_is_written_with_its_own() {
+        let mut co = coordinator("frame", 0);
+        let decided = extrapolated_decision(1);
+        let a = co.on_decided(decided.clone());
+        let w = writes(&co.on_located(locates(&a)[0].0, Err("stale".into())));
+        assert_eq!(
+            w.len(),
+            1,
+            "a capture is never dropped for want of a better pose"
+        );
+        assert_eq!(w[0].position, decided.position);
+        assert_eq!(w[0].pose_age_ms, 98.8);
+    }
+
+    #[test]
+    fn captures_are_written_in_the_order_taken_whichever_pose_comes_first() {
+        let mut co = coordinator("frame", 0);
+        let first = locates(&co.on_decided(extrapolated_decision(1)));
+        let shoot = [0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0];
+        let cmd = command(
+            MavCmd::MAV_CMD_DO_DIGICAM_CONTROL,
+            shoot,
+            GCS,
+            Trust::Accepted,
+        );
+        let second = locates(&co.on_link_event(cmd, now(6 * S)));
+        // An interpolated decision behind them waits in line too.
+        let mut third = crate::capture::record::tests::sample(3);
+        third.pose_age_ms = 0.0;
+        assert!(writes(&co.on_decided(third)).is_empty());
+        assert!(writes(&co.on_located(second[0].0, located(9.0))).is_empty());
+        let w = writes(&co.on_located(first[0].0, located(8.0)));
+        let got: Vec<_> = w
+            .iter()
+            .map(|r| (r.seq, r.capture_mode, r.position.north_m))
+            .collect();
+        assert_eq!(
+            got,
+            vec![
+                (1, CaptureMode::Frame, 8.0),
+                (2, CaptureMode::Command, 9.0),
+                (3, CaptureMode::Frame, 3.0 * 1.1),
+            ]
+        );
+        assert_eq!(co.locating(), 0);
     }
 
     #[test]

@@ -287,33 +287,61 @@ pub struct RecordInputs<'a> {
     pub mount_pitch_rad: f64,
 }
 
+/// A manifest line's position and attitude from a pose.
+fn placed(pose: &Pose, local: &LocalFrame, mount_pitch_rad: f64) -> (Position, Attitude) {
+    let (yaw, pitch, roll) = pose.q.to_euler(EulerRot::ZYX);
+    let geo = local.to_geodetic(pose.pos_ned_m.to_array());
+    let position = Position {
+        lat_deg: geo.lat_deg,
+        lon_deg: geo.lon_deg,
+        alt_m: geo.alt_m,
+        rel_alt_m: geo.alt_m - local.home().alt_m,
+        east_m: pose.pos_ned_m.y,
+        north_m: pose.pos_ned_m.x,
+        up_m: -pose.pos_ned_m.z,
+    };
+    let attitude = Attitude {
+        roll_deg: roll.to_degrees(),
+        pitch_deg: pitch.to_degrees(),
+        yaw_deg: yaw.to_degrees().rem_euclid(360.0),
+        camera_pitch_deg: mount_pitch_rad.to_degrees(),
+    };
+    (position, attitude)
+}
+
+/// Puts a decided capture where a later look at the pose buffer says it was: the pose the
+/// trigger decided on may reach past the newest telemetry sample (extrapolated with the
+/// rates, which overshoot when a turn eases off); once the sample after the capture's
+/// instant is in, the pose is interpolated. Only the pose and the autopilot's clock change;
+/// what decided the capture (spacing, distance, estimate) stays as it was decided.
+pub fn relocate(
+    record: &mut CaptureRecord,
+    pose: &Pose,
+    boot_us: Option<u64>,
+    local: &LocalFrame,
+    mount_pitch_rad: f64,
+) {
+    let (position, attitude) = placed(pose, local, mount_pitch_rad);
+    record.position = position;
+    record.attitude = attitude;
+    record.pose_age_ms = pose.extrapolated_ns as f64 * 1e-6;
+    if let Some(b) = boot_us {
+        record.time_boot_us = b;
+    }
+}
+
 /// One manifest line from the pose, the estimate and the trigger's capture.
 pub fn capture_record(r: &RecordInputs) -> CaptureRecord {
     let pose = r.pose;
-    let (yaw, pitch, roll) = pose.q.to_euler(EulerRot::ZYX);
-    let geo = r.local.to_geodetic(pose.pos_ned_m.to_array());
-    let home_alt = r.local.home().alt_m;
+    let (position, attitude) = placed(pose, r.local, r.mount_pitch_rad);
     CaptureRecord {
         seq: r.seq,
         image: r.image_format.map(|fmt| image_file_name(r.seq, fmt)),
         time_boot_us: r.boot_us.unwrap_or(0),
         time_unix_us: r.unix_us,
         mono_ns: r.mono_ns,
-        position: Position {
-            lat_deg: geo.lat_deg,
-            lon_deg: geo.lon_deg,
-            alt_m: geo.alt_m,
-            rel_alt_m: geo.alt_m - home_alt,
-            east_m: pose.pos_ned_m.y,
-            north_m: pose.pos_ned_m.x,
-            up_m: -pose.pos_ned_m.z,
-        },
-        attitude: Attitude {
-            roll_deg: roll.to_degrees(),
-            pitch_deg: pitch.to_degrees(),
-            yaw_deg: yaw.to_degrees().rem_euclid(360.0),
-            camera_pitch_deg: r.mount_pitch_rad.to_degrees(),
-        },
+        position,
+        attitude,
         spacing: Spacing {
             permissible_m: r.estimate.and_then(|e| e.spacing.permissible_m),
             chosen_m: r.capture.spacing_m,
