@@ -104,7 +104,7 @@ struct Waiting {
 
 enum Answer {
     Pending,
-    Located(Result<Located, String>),
+    Located(Box<Result<Located, String>>),
     /// A decided capture whose pose was already interpolated, in line behind others.
     NotNeeded,
 }
@@ -548,7 +548,7 @@ impl Coordinator {
         let Some(w) = self.locating.get_mut(&id) else {
             return out;
         };
-        w.answer = Answer::Located(located);
+        w.answer = Answer::Located(Box::new(located));
         while let Some(e) = self.locating.first_entry() {
             if matches!(e.get().answer, Answer::Pending) {
                 break;
@@ -557,21 +557,23 @@ impl Coordinator {
             match (w.what, w.answer) {
                 (Awaits::Asked(asked), answer) => {
                     let located = match answer {
-                        Answer::Located(l) => l,
+                        Answer::Located(l) => *l,
                         // Not made: an asked capture always waits for its pose.
                         _ => Err("no pose was asked for".into()),
                     };
                     self.asked_located(&mut out, asked, w.mono_ns, located)
                 }
                 (Awaits::Decided(mut record), answer) => {
-                    if let Answer::Located(Ok(l)) = &answer {
-                        relocate(
-                            &mut record,
-                            &l.pose,
-                            l.boot_us,
-                            &l.local,
-                            self.config.depth.mount_pitch_rad,
-                        );
+                    if let Answer::Located(located) = &answer {
+                        if let Ok(l) = located.as_ref() {
+                            relocate(
+                                &mut record,
+                                &l.pose,
+                                l.boot_us,
+                                &l.local,
+                                self.config.depth.mount_pitch_rad,
+                            );
+                        }
                     }
                     // No later pose: the capture keeps the one it was decided with (its
                     // pose_age_ms says how far that reached); it is never dropped.
