@@ -1,10 +1,11 @@
 //! alfd: occlusion-aware light-field sampling for drone captures.
-//! `core` is pure numerics; everything else is the edges (files, devices, links).
+//! `core` is pure numerics (the `alfd-core` crate in `crates/alfd-core`, re-exported); everything
+//! else is the edges (files, devices, links).
 //! The simulator, renderer and evaluation are behind the default feature `sim`.
 
 pub mod capture;
 pub mod config;
-pub mod core;
+pub use alfd_core as core;
 pub mod daemon;
 pub mod depthio;
 #[cfg(feature = "sim")]

@@ -5,8 +5,8 @@
 
 mod tools;
 
-use alfd::capture::export::body_to_ned;
 use alfd::capture::{parse_exif_gps, read_manifest, tlog, CaptureMode, CaptureRecord};
+use alfd::core::attitude::body_to_ned;
 use alfd::daemon::sim::{run_sim, SimArgs, SimOutcome};
 use glam::{DMat3, DQuat};
 use std::path::Path;

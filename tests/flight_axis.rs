@@ -4,11 +4,12 @@
 //! scans the image's rows then instead of its columns.
 
 use alfd::capture::CaptureMode;
+use alfd::core::attitude::flight_axis;
 use alfd::core::geo::{Geodetic, LocalFrame};
 use alfd::core::pose::Pose;
 use alfd::core::trigger::TriggerParams;
 use alfd::core::{DepthData, DepthImage, EstimatorParams, Intrinsics, Profile, Quality, TrackAxis};
-use alfd::daemon::step::{flight_axis, FrameInput, Pipeline, StepOutcome, StepParams};
+use alfd::daemon::step::{FrameInput, Pipeline, StepOutcome, StepParams};
 use alfd::render::render_depth;
 use alfd::scene::Scene;
 use alfd::source::synthetic::CameraPose;

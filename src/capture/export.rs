@@ -8,6 +8,7 @@
 //! pitch φ rotates it about the body's right axis. Body → NED by the autopilot's
 //! ZYX Euler angles; world = local ENU metres around the home point.
 
+use crate::core::attitude::{body_to_ned, camera_to_body};
 use glam::{DMat3, DMat4, DVec3, DVec4};
 use serde::{Deserialize, Serialize};
 
@@ -16,20 +17,6 @@ use super::store::{CaptureStore, StoreError};
 
 pub const GEO_TXT: &str = "geo.txt";
 pub const TRANSFORMS_JSON: &str = "transforms.json";
-
-/// Vehicle body (FRD) → NED, from the autopilot's roll, pitch, yaw (ZYX, radians).
-pub fn body_to_ned(roll_rad: f64, pitch_rad: f64, yaw_rad: f64) -> DMat3 {
-    DMat3::from_rotation_z(yaw_rad)
-        * DMat3::from_rotation_y(pitch_rad)
-        * DMat3::from_rotation_x(roll_rad)
-}
-
-/// OpenCV camera → body (FRD): a rotation by the camera pitch about the body's
-/// right (y) axis, so the optical axis is (sin φ, 0, cos φ) and the image's x axis
-/// (cos φ, 0, −sin φ).
-pub fn camera_to_body(camera_pitch_rad: f64) -> DMat3 {
-    DMat3::from_rotation_y(camera_pitch_rad)
-}
 
 /// NED → ENU: swap the horizontal axes, flip the vertical one.
 pub const NED_TO_ENU: DMat3 = DMat3::from_cols(

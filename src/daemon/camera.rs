@@ -1513,7 +1513,7 @@ mod tests {
             roll in -60.0f64..60.0, pitch in -60.0f64..60.0, yaw in -180.0f64..180.0,
             cam in -10.0f64..90.0,
         ) {
-            use crate::capture::export::{body_to_ned, camera_to_body};
+            use crate::core::attitude::{body_to_ned, camera_to_body};
             let (r, p, y, c) =
                 (roll.to_radians(), pitch.to_radians(), yaw.to_radians(), cam.to_radians());
             let m = body_to_ned(r, p, y) * camera_to_body(c);

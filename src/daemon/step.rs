@@ -3,17 +3,17 @@
 //! frames, poses and clocks are arguments, so the flight, `alfd sim` and the
 //! tests run the same decision code.
 
-use crate::capture::export::camera_to_body;
 use crate::capture::{
     image_file_name, Attitude, CameraIntrinsics, CaptureMode, CaptureRecord, ClosedLoopRecord,
     ImageFormat, Occlusion, Position, QualityRecord, Spacing,
 };
+use crate::core::attitude::{camera_to_body, flight_axis};
 use crate::core::closedloop::{ClosedLoop, ClosedLoopTargets, DepthSnapshot, Measure, View};
 use crate::core::geo::LocalFrame;
 use crate::core::pose::Pose;
 use crate::core::trigger::{Capture, Decision, Opportunity, Trigger, TriggerParams};
 use crate::core::{DepthImage, Estimate, Estimator, EstimatorParams, Intrinsics, TrackAxis};
-use glam::{DMat3, DVec3, EulerRot};
+use glam::{DMat3, EulerRot};
 
 /// What the pipeline needs besides the estimator and trigger settings.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -226,44 +226,6 @@ impl Pipeline {
             record: Box::new(record),
         }
     }
-}
-
-/// Below this horizontal speed the direction of flight is noise: the
-/// configured scan axis holds.
-pub const FLIGHT_AXIS_SPEED_MIN_MPS: f64 = 0.5;
-
-/// The image axis nearest the direction of flight (image columns run along
-/// `Rows`' lines, image rows along `Columns`'), and the camera's tilt along
-/// it: the angle of the optical axis from the vertical in the vertical plane of
-/// that axis, positive towards the axis. Below
-/// [`FLIGHT_AXIS_SPEED_MIN_MPS`], `fixed` holds. Pure.
-pub fn flight_axis(cam_to_ned: &DMat3, vel_ned_mps: DVec3, fixed: TrackAxis) -> (TrackAxis, f64) {
-    let horizontal = |v: DVec3| DVec3::new(v.x, v.y, 0.0);
-    let v = horizontal(vel_ned_mps);
-    // NaN speeds (never from the pose buffer, which refuses them) hold too.
-    let moving = v.length() >= FLIGHT_AXIS_SPEED_MIN_MPS;
-    let axis = if !moving {
-        fixed
-    } else if horizontal(cam_to_ned.x_axis).dot(v).abs()
-        >= horizontal(cam_to_ned.y_axis).dot(v).abs()
-    {
-        TrackAxis::Rows
-    } else {
-        TrackAxis::Columns
-    };
-    let image_axis = match axis {
-        TrackAxis::Rows => cam_to_ned.x_axis,
-        TrackAxis::Columns => cam_to_ned.y_axis,
-    };
-    let a = horizontal(image_axis);
-    let z = cam_to_ned.z_axis;
-    let tilt = if a.length() < 1e-12 {
-        // The image axis is vertical: the camera looks along the horizon.
-        std::f64::consts::FRAC_PI_2
-    } else {
-        z.dot(a / a.length()).atan2(z.z)
-    };
-    (axis, tilt)
 }
 
 /// What a capture record is made of.

@@ -3,9 +3,8 @@
 //! estimating sequential.
 
 use super::{TrackSample, TruthPose};
-use crate::capture::export::body_to_ned;
+use crate::core::attitude::{body_to_ned, flight_axis};
 use crate::core::{DepthData, DepthImage, Estimator, EstimatorParams, Intrinsics};
-use crate::daemon::step::flight_axis;
 use crate::render::{render_depth, Camera};
 use crate::scene::Scene;
 use glam::{DMat3, DVec3};

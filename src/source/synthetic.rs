@@ -5,7 +5,7 @@
 
 pub use super::{Clock, MonotonicClock};
 use super::{ColorImage, DepthSource, FrameAt, SourceError, Stamped};
-use crate::capture::export::{body_to_ned, camera_to_body};
+use crate::core::attitude::{body_to_ned, camera_to_body};
 use crate::core::{DepthImage, Intrinsics};
 use crate::render::{render, render_depth, Camera, Frame, RenderOptions, SensorModel};
 use crate::scene::Scene;

@@ -874,8 +874,8 @@ pub fn estimate(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::core::depth::{DepthData, TrackAxis};
-    use crate::core::inverse::DepthRange;
+    use crate::depth::{DepthData, TrackAxis};
+    use crate::inverse::DepthRange;
 
     /// The span as it was first written (one square root per sample, pushed
     /// in order): the mirrored-line reuse must give the same bits.

@@ -3,6 +3,7 @@
 //! or a state machine over its arguments (a test enforces it).
 
 pub mod allowlist;
+pub mod attitude;
 pub mod backoff;
 pub mod closedloop;
 pub mod depth;
