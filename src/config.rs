@@ -284,7 +284,8 @@ impl RawConfig {
                 bad(
                     "sampling.model",
                     format!(
-                        "unknown model {m:?}: use \"quality\", \"occlusion\", \"mmds\", \"sspa\" or \"fixed\""
+                        "unknown model {m:?}: use one of {:?}",
+                        Model::ALL.map(Model::as_str)
                     ),
                 )
             })?;
@@ -295,7 +296,10 @@ impl RawConfig {
                 .ok_or_else(|| {
                     bad(
                         "quality.profile",
-                        format!("unknown profile {name:?}: use \"lightfield\" or \"mapping\""),
+                        format!(
+                            "unknown profile {name:?}: use one of {:?}",
+                            Profile::ALL.map(Profile::as_str)
+                        ),
                     )
                 })?
                 .targets();

@@ -35,13 +35,13 @@ pub struct Args {
     /// Config file ([sampling], [estimator], [score]).
     #[arg(long)]
     config: Option<PathBuf>,
-    /// Override the sampling model: quality (the default), occlusion, mmds, sspa, fixed.
-    #[arg(long)]
-    model: Option<String>,
+    /// Override the sampling model (default: quality).
+    #[arg(long, value_parser = super::model_parser())]
+    model: Option<Model>,
     /// Quality profile: lightfield (parallax 2 px, unseen 0.002, 2 views) or
     /// mapping (80 % forward overlap, unseen 0.002, 3 views); the flags below override it.
-    #[arg(long)]
-    profile: Option<String>,
+    #[arg(long, value_parser = super::profile_parser())]
+    profile: Option<Profile>,
     /// Largest disparity range per capture step, px ("off": not in force).
     #[arg(long)]
     parallax_px: Option<String>,
@@ -86,17 +86,11 @@ pub fn run(a: Args) -> Result<ExitCode> {
         )));
     }
     let p = &mut cfg.estimator;
-    if let Some(m) = &a.model {
-        p.model = Model::parse(m).ok_or_else(|| {
-            bad(format!(
-                "--model {m}: use quality, occlusion, mmds, sspa or fixed"
-            ))
-        })?;
+    if let Some(m) = a.model {
+        p.model = m;
     }
-    if let Some(name) = &a.profile {
-        p.quality = Profile::parse(name)
-            .ok_or_else(|| bad(format!("--profile {name}: use lightfield or mapping")))?
-            .targets();
+    if let Some(profile) = a.profile {
+        p.quality = profile.targets();
     }
     let target = |flag: &str, v: &str| -> Result<Option<f64>> {
         if v == "off" {

@@ -14,7 +14,9 @@ pub mod sim;
 pub mod tradeoff;
 
 use alfd::config::Config;
+use alfd::core::{Model, Profile};
 use anyhow::{Context, Result};
+use clap::builder::{PossibleValuesParser, TypedValueParser};
 use std::path::PathBuf;
 
 /// Bad input from the user (a file, a flag, a config): exit code 2.
@@ -80,4 +82,17 @@ async fn termination() {
         _ = term => {}
         _ = tokio::signal::ctrl_c() => {}
     }
+}
+
+/// `--model`: the core's models by name, listed in the help and in clap's error (the core
+/// does not know clap, so no `ValueEnum` derive there).
+pub fn model_parser() -> impl TypedValueParser<Value = Model> {
+    PossibleValuesParser::new(Model::ALL.map(Model::as_str))
+        .try_map(|s| Model::parse(&s).ok_or_else(|| BadInput(format!("unknown model {s:?}"))))
+}
+
+/// `--profile`: the core's quality profiles by name.
+pub fn profile_parser() -> impl TypedValueParser<Value = Profile> {
+    PossibleValuesParser::new(Profile::ALL.map(Profile::as_str))
+        .try_map(|s| Profile::parse(&s).ok_or_else(|| BadInput(format!("unknown profile {s:?}"))))
 }

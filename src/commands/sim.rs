@@ -35,12 +35,12 @@ pub struct Args {
     /// How captures are taken.
     #[arg(long, value_enum, default_value_t = CaptureMode::Frame)]
     mode: CaptureMode,
-    /// quality (the default), occlusion, mmds, sspa or fixed.
-    #[arg(long)]
-    model: Option<String>,
-    /// Quality targets: lightfield (the default) or mapping.
-    #[arg(long)]
-    profile: Option<String>,
+    /// The sampling model (default: quality).
+    #[arg(long, value_parser = super::model_parser())]
+    model: Option<Model>,
+    /// Quality targets (default: lightfield).
+    #[arg(long, value_parser = super::profile_parser())]
+    profile: Option<Profile>,
     /// Also measure each frame against the last capture ([trigger] closed_loop).
     #[arg(long)]
     closed_loop: bool,
@@ -58,21 +58,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<ExitCode> {
-    let model = match &a.model {
-        Some(m) => Some(Model::parse(m).ok_or_else(|| {
-            bad(format!(
-                "--model {m}: use quality, occlusion, mmds, sspa or fixed"
-            ))
-        })?),
-        None => None,
-    };
-    let profile = match &a.profile {
-        Some(p) => Some(
-            Profile::parse(p)
-                .ok_or_else(|| bad(format!("--profile {p}: use lightfield or mapping")))?,
-        ),
-        None => None,
-    };
+    let (model, profile) = (a.model, a.profile);
     for (name, v, max) in [
         ("--speed-mps", a.speed_mps, 50.0),
         ("--telemetry-hz", a.telemetry_hz, 1000.0),

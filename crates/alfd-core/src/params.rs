@@ -32,15 +32,17 @@ impl Model {
             Model::Fixed => "fixed",
         }
     }
+    /// Every model, the default first: the one list the config, the flags and their help
+    /// read (names from [`Model::as_str`]).
+    pub const ALL: [Model; 5] = [
+        Model::Quality,
+        Model::Occlusion,
+        Model::Mmds,
+        Model::Sspa,
+        Model::Fixed,
+    ];
     pub fn parse(s: &str) -> Option<Model> {
-        Some(match s {
-            "quality" => Model::Quality,
-            "occlusion" => Model::Occlusion,
-            "mmds" => Model::Mmds,
-            "sspa" => Model::Sspa,
-            "fixed" => Model::Fixed,
-            _ => return None,
-        })
+        Model::ALL.into_iter().find(|m| m.as_str() == s)
     }
 }
 
@@ -62,12 +64,10 @@ impl Profile {
             Profile::Mapping => "mapping",
         }
     }
+    /// Every profile, the default first (names from [`Profile::as_str`]).
+    pub const ALL: [Profile; 2] = [Profile::Lightfield, Profile::Mapping];
     pub fn parse(s: &str) -> Option<Profile> {
-        Some(match s {
-            "lightfield" => Profile::Lightfield,
-            "mapping" => Profile::Mapping,
-            _ => return None,
-        })
+        Profile::ALL.into_iter().find(|p| p.as_str() == s)
     }
     /// The profile's targets, before any set directly.
     pub fn targets(self) -> Quality {
@@ -457,5 +457,46 @@ impl EstimatorParams {
             )?;
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{Model, Profile};
+
+    /// The lists are the one table of names: every variant is in its list (a new variant
+    /// stops the matches compiling until it has an index here), and every name parses
+    /// back to its variant.
+    #[test]
+    fn every_model_and_profile_is_listed_and_its_name_parses_back() {
+        let model_index = |m: Model| match m {
+            Model::Quality => 0,
+            Model::Occlusion => 1,
+            Model::Mmds => 2,
+            Model::Sspa => 3,
+            Model::Fixed => 4,
+        };
+        let mut listed = [false; 5];
+        for m in Model::ALL {
+            listed[model_index(m)] = true;
+            assert_eq!(Model::parse(m.as_str()), Some(m));
+        }
+        assert!(listed.iter().all(|&l| l), "a model missing from Model::ALL");
+        let profile_index = |p: Profile| match p {
+            Profile::Lightfield => 0,
+            Profile::Mapping => 1,
+        };
+        let mut listed = [false; 2];
+        for p in Profile::ALL {
+            listed[profile_index(p)] = true;
+            assert_eq!(Profile::parse(p.as_str()), Some(p));
+        }
+        assert!(
+            listed.iter().all(|&l| l),
+            "a profile missing from Profile::ALL"
+        );
+        assert_eq!(Model::ALL[0], Model::default());
+        assert_eq!(Profile::ALL[0], Profile::default());
+        assert_eq!(Model::parse("Quality"), None, "names are exact");
     }
 }
