@@ -15,7 +15,6 @@ use mavlink::dialects::ardupilotmega::{
     CAMERA_INFORMATION_DATA, CAMERA_SETTINGS_DATA, COMMAND_ACK_DATA, NAMED_VALUE_FLOAT_DATA,
     STATUSTEXT_DATA, STORAGE_INFORMATION_DATA,
 };
-use mavlink::{MavlinkVersion, MessageData};
 
 /// CAMERA_IMAGE_CAPTURED messages kept for re-requests (about 16 KiB).
 pub const CAPTURED_RING: usize = 64;
@@ -657,13 +656,9 @@ fn statustext_with(counter: &AtomicU16, severity: MavSeverity, text: &str) -> Ve
         .collect()
 }
 
-/// The dialect's command for a wire id, through the generated decoder (the enum's own
-/// conversion needs `num-traits`, which alfd does not depend on).
+/// The dialect's command for a wire id (`None`: not one of the dialect's).
 fn mav_cmd(cmd: u32) -> Option<MavCmd> {
-    let id = u16::try_from(cmd).ok()?;
-    COMMAND_ACK_DATA::deser(MavlinkVersion::V2, &id.to_le_bytes())
-        .ok()
-        .map(|a| a.command)
+    num_traits::FromPrimitive::from_u32(cmd)
 }
 
 /// A float parameter that holds a non-negative integer below 2^24 (exact in an f32).
@@ -744,10 +739,18 @@ fn statustext_msg(severity: MavSeverity, chunk: &str, id: u16, chunk_seq: u8) ->
 mod tests {
     use super::*;
     use crate::core::allowlist::may_send;
-    use mavlink::{MavHeader, MavlinkReader, Message};
+    use mavlink::{MavHeader, MavlinkReader, MavlinkVersion, Message};
     use proptest::prelude::*;
 
     const GCS: (u8, u8) = (255, 190);
+
+    #[test]
+    fn wire_ids_become_the_dialects_commands_or_nothing() {
+        assert_eq!(mav_cmd(2000), Some(MavCmd::MAV_CMD_IMAGE_START_CAPTURE));
+        assert_eq!(mav_cmd(203), Some(MavCmd::MAV_CMD_DO_DIGICAM_CONTROL));
+        assert_eq!(mav_cmd(12_345), None, "not a command of the dialect");
+        assert_eq!(mav_cmd(70_000 + 2000), None, "beyond the wire's 16 bits");
+    }
 
     fn proto() -> CameraProtocol {
         CameraProtocol::new(CameraInfo {

@@ -202,11 +202,8 @@ impl<P: PoseAt> SyntheticColor<P> {
 /// Nice 19 for the calling thread (Linux keeps a nice value per thread): the
 /// colour renders queue behind the depth stream instead of delaying it.
 fn lower_this_threads_priority() {
-    // SAFETY: setpriority takes plain integers and touches no memory of ours;
-    // who = 0 is the calling thread. Failure only leaves the priority as is.
-    unsafe {
-        libc::setpriority(libc::PRIO_PROCESS, 0, 19);
-    }
+    // `None` is who = 0: the calling thread. Failure only leaves the priority as is.
+    let _ = rustix::process::setpriority_process(None, 19);
 }
 
 impl<P: PoseAt> FrameAt for SyntheticColor<P> {
