@@ -445,12 +445,39 @@ pub enum SourceKind {
     None,
 }
 
+/// Where a source's frames come from, with what only that kind needs: a recorded source
+/// always has its directory, a V4L2 one its device, once the config is validated.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub enum Source {
+    Synthetic,
+    V4l2 {
+        device: DeviceSelector,
+        mjpeg: bool,
+    },
+    Recorded {
+        dir: PathBuf,
+        /// Replay live (paced, re-stamped, looping), not as recorded.
+        replay_live: bool,
+    },
+    #[default]
+    None,
+}
+
+impl Source {
+    pub fn kind(&self) -> SourceKind {
+        match self {
+            Source::Synthetic => SourceKind::Synthetic,
+            Source::V4l2 { .. } => SourceKind::V4l2,
+            Source::Recorded { .. } => SourceKind::Recorded,
+            Source::None => SourceKind::None,
+        }
+    }
+}
+
 /// A validated `[camera]` or `[depth]` section.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct SourceConfig {
-    pub kind: SourceKind,
-    pub device: DeviceSelector,
-    pub mjpeg: bool,
+    pub source: Source,
     pub width: usize,
     pub height: usize,
     pub fps: f64,
@@ -460,10 +487,13 @@ pub struct SourceConfig {
     pub noise_per_m: f64,
     pub dropout: f64,
     pub max_range_m: f64,
-    pub dir: Option<PathBuf>,
-    /// Recorded sources: replay live (paced, re-stamped, looping).
-    pub replay_live: bool,
     pub mount_pitch_rad: f64,
+}
+
+impl SourceConfig {
+    pub fn kind(&self) -> SourceKind {
+        self.source.kind()
+    }
 }
 
 /// `[sim] pose` and `alfd sim --pose`: where the synthetic camera renders.
@@ -607,13 +637,6 @@ fn source(section: &str, r: &RawSource, base: &Path) -> Result<SourceConfig, (St
             ))
         }
     };
-    let dir = r.dir.as_ref().map(|d| resolve(base, d));
-    if kind == SourceKind::Recorded && dir.is_none() {
-        return Err((
-            f("dir"),
-            "a recorded source needs the recording's directory".into(),
-        ));
-    }
     let hfov_deg = r.hfov_deg.unwrap_or(69.0);
     if !(1.0..=170.0).contains(&hfov_deg) {
         return Err((
@@ -638,17 +661,31 @@ fn source(section: &str, r: &RawSource, base: &Path) -> Result<SourceConfig, (St
             format!("must be between -90 and 90 degrees, got {mount_pitch_deg}"),
         ));
     }
-    Ok(SourceConfig {
-        kind,
-        mount_pitch_rad: mount_pitch_deg.to_radians(),
-        replay_live,
-        device: DeviceSelector {
-            path: r.device_path.clone(),
-            serial: r.device_serial.clone(),
-            bus: r.device_bus.clone(),
-            card: r.device_card.clone(),
+    let source = match kind {
+        SourceKind::Synthetic => Source::Synthetic,
+        SourceKind::None => Source::None,
+        SourceKind::V4l2 => Source::V4l2 {
+            device: DeviceSelector {
+                path: r.device_path.clone(),
+                serial: r.device_serial.clone(),
+                bus: r.device_bus.clone(),
+                card: r.device_card.clone(),
+            },
+            mjpeg,
         },
-        mjpeg,
+        SourceKind::Recorded => Source::Recorded {
+            dir: r.dir.as_ref().map(|d| resolve(base, d)).ok_or_else(|| {
+                (
+                    f("dir"),
+                    "a recorded source needs the recording's directory".to_string(),
+                )
+            })?,
+            replay_live,
+        },
+    };
+    Ok(SourceConfig {
+        source,
+        mount_pitch_rad: mount_pitch_deg.to_radians(),
         width: size(&f("width"), r.width, 640)?,
         height: size(&f("height"), r.height, 480)?,
         fps: positive(&f("fps"), r.fps.unwrap_or(30.0), 1000.0)?,
@@ -658,7 +695,6 @@ fn source(section: &str, r: &RawSource, base: &Path) -> Result<SourceConfig, (St
         noise_per_m: fraction(&f("noise_per_m"), r.noise_per_m.unwrap_or(0.0), 1.0)?,
         dropout: fraction(&f("dropout"), r.dropout.unwrap_or(0.0), 1.0)?,
         max_range_m: positive(&f("max_range_m"), r.max_range_m.unwrap_or(65.0), 1e6)?,
-        dir,
     })
 }
 
@@ -677,14 +713,14 @@ impl RawConfig {
         };
         let sim_scene = self.sim.scene.as_ref().map(|p| resolve(base, p));
         let uses_synthetic =
-            camera.kind == SourceKind::Synthetic || depth.kind == SourceKind::Synthetic;
+            camera.kind() == SourceKind::Synthetic || depth.kind() == SourceKind::Synthetic;
         if uses_synthetic && sim_scene.is_none() {
             return Err((
                 "sim.scene".into(),
                 "a synthetic camera or depth source needs a scene file".into(),
             ));
         }
-        if depth.kind == SourceKind::None
+        if depth.kind() == SourceKind::None
             && estimator.model != Model::Fixed
             && self.mavlink.is_some()
         {
@@ -701,7 +737,8 @@ impl RawConfig {
             Some(w) => named("capture.mode", w)?,
             None => CaptureMode::Frame,
         };
-        if mode == CaptureMode::Frame && camera.kind == SourceKind::None && self.mavlink.is_some() {
+        if mode == CaptureMode::Frame && camera.kind() == SourceKind::None && self.mavlink.is_some()
+        {
             return Err((
                 "capture.mode".into(),
                 "\"frame\" saves the camera's frames, but camera.source is \"none\": use \"camera_command\" or \"autopilot_distance\"".into(),
@@ -790,7 +827,7 @@ impl Config {
         let section = |kind| {
             [("camera", &self.camera), ("depth", &self.depth)]
                 .into_iter()
-                .find(|(_, s)| s.kind == kind)
+                .find(|(_, s)| s.kind() == kind)
                 .map(|(name, _)| name)
         };
         match (section(SourceKind::V4l2), section(SourceKind::Synthetic)) {
@@ -893,10 +930,16 @@ mod tests {
             Some(Path::new("/etc/alfd/scenes/roof.toml"))
         );
         assert_eq!(
-            (c.depth.kind, c.depth.width, c.depth.height),
+            (c.depth.kind(), c.depth.width, c.depth.height),
             (SourceKind::Synthetic, 320, 240)
         );
-        assert_eq!(c.camera.dir.as_deref(), Some(Path::new("/etc/alfd/rec")));
+        assert_eq!(
+            c.camera.source,
+            Source::Recorded {
+                dir: PathBuf::from("/etc/alfd/rec"),
+                replay_live: false
+            }
+        );
         assert_eq!(c.capture.image_format, ImageFormat::Png);
         assert_eq!(c.trigger.rate_max_hz, 15.0);
     }
@@ -935,7 +978,10 @@ mod tests {
             "x.toml",
         )
         .unwrap();
-        assert_eq!(c.depth.device.serial.as_deref(), Some("1"));
+        let Source::V4l2 { device, mjpeg } = &c.depth.source else {
+            panic!("a v4l2 source: {:?}", c.depth.source);
+        };
+        assert_eq!((device.serial.as_deref(), *mjpeg), (Some("1"), true));
         assert_eq!(c.unsupported_by_build().is_some(), !cfg!(feature = "v4l2"));
     }
 

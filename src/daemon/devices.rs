@@ -4,9 +4,10 @@
 //! camera at the simulator's truth only exists inside `alfd sim`).
 
 use super::run::{Devices, Frames};
-use crate::config::{Config, SourceConfig, SourceKind};
+use crate::config::{Config, Source, SourceConfig};
 use crate::link::LinkHandle;
 use crate::source::recorded::Recording;
+use crate::source::select::DeviceSelector;
 use crate::source::{DepthSource, FrameSource};
 use std::path::Path;
 use std::sync::{Arc, OnceLock};
@@ -34,32 +35,22 @@ pub fn open(
     }
     let synthetic = Synthetic::open(config, slot, rt)?;
     let d = &config.depth;
-    let depth: Option<Box<dyn DepthSource>> = match d.kind {
-        SourceKind::None => None,
-        SourceKind::Recorded => {
-            let dir = d
-                .dir
-                .as_ref()
-                .ok_or("depth.dir: a recorded source needs it")?;
-            Some(recorded_depth(dir, d.replay_live).map_err(|e| format!("depth.dir: {e}"))?)
+    let depth: Option<Box<dyn DepthSource>> = match &d.source {
+        Source::None => None,
+        Source::Recorded { dir, replay_live } => {
+            Some(recorded_depth(dir, *replay_live).map_err(|e| format!("depth.dir: {e}"))?)
         }
-        SourceKind::Synthetic => Some(synthetic.depth(d)?),
-        SourceKind::V4l2 => open_v4l2_depth(d)?,
+        Source::Synthetic => Some(synthetic.depth(d)?),
+        Source::V4l2 { device, .. } => open_v4l2_depth(d, device)?,
     };
     let c = &config.camera;
-    let frames = match c.kind {
-        SourceKind::None => None,
-        SourceKind::Recorded => {
-            let dir = c
-                .dir
-                .as_ref()
-                .ok_or("camera.dir: a recorded source needs it")?;
-            Some(Frames::Stream(
-                recorded_color(dir, c.replay_live).map_err(|e| format!("camera.dir: {e}"))?,
-            ))
-        }
-        SourceKind::Synthetic => Some(synthetic.color(c, d)?),
-        SourceKind::V4l2 => open_v4l2_color(c)?,
+    let frames = match &c.source {
+        Source::None => None,
+        Source::Recorded { dir, replay_live } => Some(Frames::Stream(
+            recorded_color(dir, *replay_live).map_err(|e| format!("camera.dir: {e}"))?,
+        )),
+        Source::Synthetic => Some(synthetic.color(c, d)?),
+        Source::V4l2 { device, mjpeg } => open_v4l2_color(c, device, *mjpeg)?,
     };
     Ok(Devices {
         depth,
@@ -89,23 +80,33 @@ fn recorded_color(dir: &Path, live: bool) -> Result<Box<dyn FrameSource>, String
 }
 
 #[cfg(feature = "v4l2")]
-fn open_v4l2_depth(d: &SourceConfig) -> Result<Option<Box<dyn DepthSource>>, String> {
+fn open_v4l2_depth(
+    d: &SourceConfig,
+    device: &DeviceSelector,
+) -> Result<Option<Box<dyn DepthSource>>, String> {
     let intr = intrinsics(d).map_err(|e| format!("depth: {e}"))?;
-    let src = crate::source::v4l2::V4l2Depth::open(d.device.clone(), intr, d.scale_m, d.fps as u32)
+    let src = crate::source::v4l2::V4l2Depth::open(device.clone(), intr, d.scale_m, d.fps as u32)
         .map_err(|e| format!("depth: {e}"))?;
     Ok(Some(Box::new(src)))
 }
 
 #[cfg(not(feature = "v4l2"))]
-fn open_v4l2_depth(_: &SourceConfig) -> Result<Option<Box<dyn DepthSource>>, String> {
+fn open_v4l2_depth(
+    _: &SourceConfig,
+    _: &DeviceSelector,
+) -> Result<Option<Box<dyn DepthSource>>, String> {
     Err("depth.source = \"v4l2\" needs a build with `--features v4l2`".into())
 }
 
 #[cfg(feature = "v4l2")]
-fn open_v4l2_color(c: &SourceConfig) -> Result<Option<Frames>, String> {
+fn open_v4l2_color(
+    c: &SourceConfig,
+    device: &DeviceSelector,
+    mjpeg: bool,
+) -> Result<Option<Frames>, String> {
     let src = crate::source::v4l2::V4l2Color::open(
-        c.device.clone(),
-        c.mjpeg,
+        device.clone(),
+        mjpeg,
         c.width,
         c.height,
         c.fps as u32,
@@ -115,7 +116,11 @@ fn open_v4l2_color(c: &SourceConfig) -> Result<Option<Frames>, String> {
 }
 
 #[cfg(not(feature = "v4l2"))]
-fn open_v4l2_color(_: &SourceConfig) -> Result<Option<Frames>, String> {
+fn open_v4l2_color(
+    _: &SourceConfig,
+    _: &DeviceSelector,
+    _: bool,
+) -> Result<Option<Frames>, String> {
     Err("camera.source = \"v4l2\" needs a build with `--features v4l2`".into())
 }
 
@@ -171,7 +176,7 @@ mod synthetic {
     }
 
     fn uses(c: &Config, kind: SourceKind) -> bool {
-        c.camera.kind == kind || c.depth.kind == kind
+        c.camera.kind() == kind || c.depth.kind() == kind
     }
 
     /// The scene the synthetic sources render, loaded once for both.
