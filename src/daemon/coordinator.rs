@@ -899,6 +899,17 @@ mod tests {
         }
     }
 
+    /// A ground station's DO_DIGICAM_CONTROL with "shoot" set.
+    fn digicam_shot() -> LinkEvent {
+        let shoot = [0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0];
+        command(
+            MavCmd::MAV_CMD_DO_DIGICAM_CONTROL,
+            shoot,
+            GCS,
+            Trust::Accepted,
+        )
+    }
+
     fn located(north_m: f64) -> Result<Located, String> {
         Ok(Located {
             pose: Pose {
@@ -1143,13 +1154,7 @@ mod tests {
     #[test]
     fn decisions_are_renumbered_after_command_captures() {
         let mut co = coordinator("frame", 0);
-        let shoot = [0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0];
-        let cmd = command(
-            MavCmd::MAV_CMD_DO_DIGICAM_CONTROL,
-            shoot,
-            GCS,
-            Trust::Accepted,
-        );
+        let cmd = digicam_shot();
         let l = locates(&co.on_link_event(cmd, now(S)));
         assert_eq!(writes(&co.on_located(l[0].0, located(0.0)))[0].seq, 1);
         // The estimator numbered its own capture 1 too: the manifest's number wins.
@@ -1213,13 +1218,7 @@ mod tests {
     fn captures_are_written_in_the_order_taken_whichever_pose_comes_first() {
         let mut co = coordinator("frame", 0);
         let first = locates(&co.on_decided(extrapolated_decision(1)));
-        let shoot = [0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0];
-        let cmd = command(
-            MavCmd::MAV_CMD_DO_DIGICAM_CONTROL,
-            shoot,
-            GCS,
-            Trust::Accepted,
-        );
+        let cmd = digicam_shot();
         let second = locates(&co.on_link_event(cmd, now(6 * S)));
         // An interpolated decision behind them waits in line too.
         let mut third = crate::capture::record::tests::sample(3);
@@ -1245,13 +1244,7 @@ mod tests {
     #[test]
     fn a_capture_without_its_image_is_a_failed_capture() {
         let mut co = coordinator("frame", 0);
-        let shoot = [0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0];
-        let cmd = command(
-            MavCmd::MAV_CMD_DO_DIGICAM_CONTROL,
-            shoot,
-            GCS,
-            Trust::Accepted,
-        );
+        let cmd = digicam_shot();
         let l = locates(&co.on_link_event(cmd, now(S)));
         let mut r = writes(&co.on_located(l[0].0, located(0.0))).remove(0);
         r.image = None;
