@@ -19,7 +19,7 @@ use tokio::sync::mpsc;
 
 /// Of which the image may take this much; the rest is for the manifest line, the answer
 /// and the link.
-const IMAGE_BUDGET_NS: u64 = 400_000_000;
+pub(crate) const IMAGE_BUDGET_NS: u64 = 400_000_000;
 /// Captures the coordinator holds while the writer's queue is full (about 1 KiB each);
 /// beyond, a capture is reported failed rather than held without bound.
 const WRITE_BACKLOG: usize = 1024;

@@ -243,7 +243,12 @@ pub async fn run(
         None => (None, None),
         Some(Frames::AtInstant(f)) => (Some(f), None),
         Some(Frames::Stream(s)) => {
-            let (ring, h) = stream_thread(s, (2e9 / config.camera.fps) as u64, stop.clone());
+            let (ring, h) = stream_thread(
+                s,
+                ring_frames(config.camera.fps),
+                (2e9 / config.camera.fps) as u64,
+                stop.clone(),
+            );
             (Some(Box::new(ring) as Box<dyn FrameAt>), Some(h))
         }
     };
@@ -489,13 +494,22 @@ fn spawn_thread<T: Send + 'static>(
         .expect("a thread starts")
 }
 
+/// Frames a streaming camera's ring keeps: every frame of the last image budget (a
+/// capture's image may be made up to then), and two more for the tolerance either side.
+/// Eight frames (267 ms at 30 fps, 133 ms at 60) were fewer than a capture waiting for its
+/// pose (up to one telemetry period) and the writer's queue can take.
+fn ring_frames(fps: f64) -> usize {
+    (fps * super::outbox::IMAGE_BUDGET_NS as f64 * 1e-9).ceil() as usize + 2
+}
+
 /// A streaming camera's thread, feeding a ring of its last frames.
 fn stream_thread(
     mut s: Box<dyn FrameSource>,
+    frames: usize,
     tolerance_ns: u64,
     stop: shutdown::Shutdown,
 ) -> (WaitingRing, std::thread::JoinHandle<()>) {
-    let ring = FrameRing::new(8, tolerance_ns);
+    let ring = FrameRing::new(frames, tolerance_ns);
     let feed = ring.clone();
     let h = spawn_thread("alfd-camera", move || {
         while !stop.is_stopping() {
@@ -526,5 +540,26 @@ impl FrameAt for WaitingRing {
             std::thread::sleep(Duration::from_millis(10));
         }
         None
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::ring_frames;
+    use crate::daemon::outbox::IMAGE_BUDGET_NS;
+
+    /// The ring still holds the frame of a capture's instant when the writer starts its
+    /// image, however late within the budget, at any frame rate.
+    #[test]
+    fn the_colour_ring_spans_the_image_budget_at_any_frame_rate() {
+        for fps in [1.0, 6.0, 15.0, 30.0, 60.0, 90.0] {
+            let n = ring_frames(fps);
+            let span_ns = (n - 1) as f64 / fps * 1e9;
+            assert!(
+                span_ns >= IMAGE_BUDGET_NS as f64,
+                "{n} frames at {fps} fps span {span_ns} ns"
+            );
+        }
+        assert_eq!(ring_frames(30.0), 14);
     }
 }
