@@ -340,6 +340,15 @@ fn run_daemon(
     if let Ok(m) = read_manifest(&captures.join("flight-001").join("manifest.jsonl")) {
         f.captures_total = m.records.len();
         f.images = m.records.iter().filter(|r| r.image.is_some()).count();
+        // A capture without its image says why: the first few reasons, so a short count
+        // in the table can be read.
+        for r in m.records.iter().filter(|r| r.image.is_none()).take(5) {
+            eprintln!(
+                "daemon/{model}: capture {} without its image: {}",
+                r.seq,
+                r.image_missing.as_deref().unwrap_or("no reason given")
+            );
+        }
         f.fallback_captures = m.records.iter().filter(|r| r.fallback).count();
         let median = |v: Vec<f64>| (!v.is_empty()).then(|| median(v));
         f.permissible_median_m = median(
