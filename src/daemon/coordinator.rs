@@ -346,7 +346,7 @@ impl Coordinator {
     }
 
     /// A capture the estimator's trigger decided (its `seq` is replaced by the manifest's).
-    pub fn on_decided(&mut self, mut record: CaptureRecord) -> Vec<Action> {
+    pub fn on_decided(&mut self, record: CaptureRecord) -> Vec<Action> {
         let mut out = Vec::new();
         self.report.captures_decided += 1;
         match self.config.capture.mode {
@@ -378,13 +378,10 @@ impl Coordinator {
         let mono_ns = record.mono_ns;
         if record.pose_age_ms > 0.0 && self.locating.len() < LOCATING_MAX {
             self.wait_for_pose(&mut out, Awaits::Decided(Box::new(record)), mono_ns);
-        } else if self.locating.is_empty() {
-            self.number(&mut record);
-            self.write(&mut out, record);
         } else {
-            // Behind captures still waiting for their pose: in line after them. (With
-            // LOCATING_MAX waiting, one more decided capture goes past the bound rather than
-            // being lost; the estimator decides at most one per frame.)
+            // In line after any capture still waiting for its pose; written at once when
+            // there is none. (With LOCATING_MAX waiting, one more decided capture goes past
+            // the bound rather than being lost; the estimator decides at most one per frame.)
             self.next_id += 1;
             let waiting = Waiting {
                 what: Awaits::Decided(Box::new(record)),
@@ -392,6 +389,7 @@ impl Coordinator {
                 answer: Answer::NotNeeded,
             };
             self.locating.insert(self.next_id, waiting);
+            self.write_in_order(&mut out);
         }
         out
     }
@@ -549,6 +547,12 @@ impl Coordinator {
             return out;
         };
         w.answer = Answer::Located(Box::new(located));
+        self.write_in_order(&mut out);
+        out
+    }
+
+    /// Numbers and writes the captures at the head of the line that have their answer.
+    fn write_in_order(&mut self, out: &mut Vec<Action>) {
         while let Some(e) = self.locating.first_entry() {
             if matches!(e.get().answer, Answer::Pending) {
                 break;
@@ -561,7 +565,7 @@ impl Coordinator {
                         // Not made: an asked capture always waits for its pose.
                         _ => Err("no pose was asked for".into()),
                     };
-                    self.asked_located(&mut out, asked, w.mono_ns, located)
+                    self.asked_located(out, asked, w.mono_ns, located)
                 }
                 (Awaits::Decided(mut record), answer) => {
                     if let Answer::Located(located) = &answer {
@@ -578,12 +582,11 @@ impl Coordinator {
                     // No later pose: the capture keeps the one it was decided with (its
                     // pose_age_ms says how far that reached); it is never dropped.
                     self.number(&mut record);
-                    self.write(&mut out, *record);
+                    self.write(out, *record);
                 }
             }
         }
         self.sync_activity();
-        out
     }
 
     fn asked_located(
