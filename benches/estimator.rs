@@ -172,6 +172,7 @@ fn bench(c: &mut Criterion) {
                     &geom,
                     pitch,
                     percentile_ranks(surface, 0.005, 0.995),
+                    0,
                     &mut scratch,
                     &mut sel,
                 )

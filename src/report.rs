@@ -39,6 +39,12 @@ pub fn estimate_json(
         "status": if ok { "ok" } else { "no_estimate" },
         "reason": e.no_estimate.map(|r| r.as_str()),
         "valid_fraction": num(Some(e.valid_fraction)),
+        "far_below_fraction": num(Some(if e.samples > 0 {
+            e.far_below_samples as f64 / e.samples as f64
+        } else {
+            0.0
+        })),
+        "far_end_unbounded": e.far_end_unbounded,
         "inv_depth_per_m": inv.map(|i| json!({
             "min": num(Some(i.min_per_m)),
             "max": num(Some(i.max_per_m)),
@@ -139,6 +145,8 @@ pub fn estimate_text(
             fmt_m(Some(1.0 / i.max_per_m)),
             if i.min_per_m > 0.0 {
                 fmt_m(Some(1.0 / i.min_per_m))
+            } else if e.far_end_unbounded {
+                "beyond range".into()
             } else {
                 "sky".into()
             },
@@ -147,6 +155,18 @@ pub fn estimate_text(
         );
     } else {
         let _ = writeln!(s, "depth range    no surface in view (sky only)");
+    }
+    if e.far_below_samples > 0 {
+        let _ = writeln!(
+            s,
+            "no return      {:.1} % of samples below the horizon (ground beyond the range?){}",
+            100.0 * e.far_below_samples as f64 / e.samples.max(1) as f64,
+            if e.far_end_unbounded {
+                ": the far end is taken at infinity"
+            } else {
+                ": within the percentile tail"
+            }
+        );
     }
     if let Some(o) = e.occlusion {
         let _ = writeln!(

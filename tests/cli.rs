@@ -135,6 +135,8 @@ fn every_shipped_map_answers_with_the_documented_schema() {
             "status",
             "reason",
             "valid_fraction",
+            "far_below_fraction",
+            "far_end_unbounded",
             "inv_depth_per_m",
             "occlusion",
             "spacing_m",

@@ -3,7 +3,9 @@
 //! terms the scene and the model need are computed, and the result says which.
 
 use super::depth::{DepthImage, Intrinsics};
-use super::inverse::{fill_grid, fill_grid_counted, percentile_ranks, InvGrid, Selector, INVALID};
+use super::inverse::{
+    fill_grid, fill_grid_counted, percentile_ranks, InvGrid, Selector, FAR, INVALID,
+};
 use super::occlusion::{scan, BoundaryParams, BoundaryStats};
 use super::params::{Decimation, EstimatorParams, GainModel, Model, Quality};
 use super::plane::{fit, PlaneFit};
@@ -116,6 +118,11 @@ pub struct Terms {
     pub occlusion: bool,
     pub coverage: bool,
     pub score: bool,
+    /// Not a bound but an assumption the range rests on: more of the frame
+    /// than the low percentile's tail looked below the horizon and had no
+    /// return, so the depth range's far end was taken at infinity
+    /// (`Estimate::far_end_unbounded`).
+    pub beyond_range: bool,
 }
 
 impl Terms {
@@ -130,6 +137,7 @@ impl Terms {
             (self.occlusion, "occlusion"),
             (self.coverage, "coverage"),
             (self.score, "score"),
+            (self.beyond_range, "beyond_range"),
         ]
         .into_iter()
         .filter_map(|(on, n)| on.then_some(n))
@@ -213,6 +221,14 @@ pub struct Estimate {
     pub samples: usize,
     pub valid_samples: usize,
     pub sky_samples: usize,
+    /// Samples with no return or beyond the range that look below the horizon:
+    /// ground too far for the sensor (or a surface that returns nothing). They
+    /// count in the depth range at the far end, as if at infinity, so that the
+    /// parallax span is never understated (`far_end_unbounded`).
+    pub far_below_samples: usize,
+    /// The depth range's far end is at infinity because more of the frame
+    /// than the low percentile's tail had no return below the horizon.
+    pub far_end_unbounded: bool,
     pub valid_fraction: f64,
     pub pitch_rad: f64,
     pub inv_depth: Option<InvDepth>,
@@ -240,6 +256,8 @@ impl Estimate {
             samples: 0,
             valid_samples: 0,
             sky_samples: 0,
+            far_below_samples: 0,
+            far_end_unbounded: false,
             valid_fraction: 0.0,
             pitch_rad: if pitch_rad.is_finite() {
                 pitch_rad
@@ -509,12 +527,21 @@ impl Estimator {
         let c_tex = p.texture_bandwidth;
         let dv = p.disparity_tolerance_px;
 
+        // Beyond the range below the horizon is far ground, not sky: it joins
+        // the depth range at inverse depth 0, its far end (the percentiles of
+        // the samples with it, the far ones below the rest).
+        let far = far_below_horizon(&self.grid, &geom, pitch_rad) as u64;
+        est.far_below_samples = far as usize;
         let n_range = (self.grid.valid - if p.sky_is_scene { 0 } else { self.grid.sky }) as u64;
         // Disparity range per metre of baseline, px/m (`None`: MMDS's `f·cos φ·Δw`).
         let mut parallax_per_m: Option<f64> = None;
         if n_range > 0 {
-            let ranks = percentile_ranks(n_range, p.percentile_low, p.percentile_high);
-            if let Some([lo, hi]) = self.grid.select2(&mut self.selector, p.sky_is_scene, ranks) {
+            let ranks = percentile_ranks(n_range + far, p.percentile_low, p.percentile_high);
+            est.far_end_unbounded = ranks[0] < far;
+            est.terms.beyond_range = est.far_end_unbounded;
+            let (grid, selector) = (&self.grid, &mut self.selector);
+            let selected = with_far(ranks, far, |r| grid.select2(selector, p.sky_is_scene, r));
+            if let Some([lo, hi]) = selected {
                 let (lo, hi) = (lo as f64, hi as f64);
                 est.inv_depth = Some(InvDepth {
                     min_per_m: lo,
@@ -539,7 +566,12 @@ impl Estimator {
                                 &self.grid,
                                 &geom,
                                 pitch_rad,
-                                percentile_ranks(surface, p.percentile_low, p.percentile_high),
+                                percentile_ranks(
+                                    surface + far,
+                                    p.percentile_low,
+                                    p.percentile_high,
+                                ),
+                                far,
                                 &mut self.disparity,
                                 &mut self.selector,
                             );
@@ -763,8 +795,53 @@ pub fn visibility_step(samples: usize, step: usize, samples_max: usize) -> usize
     }
 }
 
+/// Order statistics `ranks` of a set whose `far` smallest members are 0 (far
+/// samples) and the rest are what `select` gives at its own ranks.
+fn with_far(
+    ranks: [u64; 2],
+    far: u64,
+    select: impl FnOnce([u64; 2]) -> Option<[f32; 2]>,
+) -> Option<[f32; 2]> {
+    if far == 0 {
+        return select(ranks);
+    }
+    if ranks[1] < far {
+        return Some([0.0, 0.0]);
+    }
+    let [lo, hi] = select(ranks.map(|r| r.saturating_sub(far)))?;
+    Some([if ranks[0] < far { 0.0 } else { lo }, hi])
+}
+
+/// `FAR` samples whose ray looks below the horizon (the along-track tilt
+/// `pitch_rad`, as the rest of the estimate; roll is not known here).
+fn far_below_horizon(grid: &InvGrid, geom: &super::depth::TrackGeometry, pitch_rad: f64) -> usize {
+    if grid.far == 0 || !(pitch_rad.is_finite() && geom.focal_px > 0.0) {
+        return 0;
+    }
+    let (s, c) = pitch_rad.sin_cos();
+    // `cos φ − t·sin φ`, the ray's downward component (visibility's `g`).
+    let below: Vec<bool> = grid
+        .along_idx
+        .iter()
+        .map(|&i| c - geom.v_px(i) / geom.focal_px * s > 1e-9)
+        .collect();
+    if below.iter().all(|&b| b) {
+        return grid.far;
+    }
+    (0..grid.lines)
+        .map(|a| {
+            grid.line(a)
+                .iter()
+                .zip(&below)
+                .filter(|&(&w, &b)| b && w == FAR)
+                .count()
+        })
+        .sum()
+}
+
 /// The robust span (the ranks of the depth range) of the disparity per metre
-/// of horizontal baseline over the surface samples. Off nadir the disparity
+/// of horizontal baseline over the surface samples and `far` samples beyond
+/// the range below the horizon (disparity 0, the smallest). Off nadir the disparity
 /// of a sample at along-track offset `u` and across-track offset `v` (px) is
 /// `(b/z)·|(f·cos φ − u·sin φ, v·sin φ)|`: the camera also moves along its
 /// optical axis by `b·sin φ`, which MMDS's `f·cos φ` leaves out. The truth
@@ -774,6 +851,7 @@ pub fn disparity_span_per_m(
     geom: &super::depth::TrackGeometry,
     pitch_rad: f64,
     ranks: [u64; 2],
+    far: u64,
     scratch: &mut Vec<f32>,
     selector: &mut Selector,
 ) -> Option<f64> {
@@ -819,7 +897,7 @@ pub fn disparity_span_per_m(
             }
         }
     }
-    let [lo, hi] = selector.select2(scratch, false, ranks)?;
+    let [lo, hi] = with_far(ranks, far, |r| selector.select2(scratch, false, r))?;
     Some((hi - lo) as f64)
 }
 
@@ -929,6 +1007,7 @@ mod tests {
                                 &geom,
                                 pitch,
                                 ranks,
+                                0,
                                 &mut Vec::new(),
                                 &mut Selector::default(),
                             );

@@ -3,14 +3,19 @@
 //! in the same pass (inverse depth falls monotonically with the Z16 value), else
 //! by a three-level radix histogram of the floats (no sort).
 //!
-//! Invariant: a grid value is `INVALID` (negative), `SKY` (0.0) or a finite
-//! positive inverse depth in 1/m. Non-negative `f32` bit patterns order like
+//! Invariant: a grid value is `INVALID` or `FAR` (negative), `SKY` (0.0) or a
+//! finite positive inverse depth in 1/m. Non-negative `f32` bit patterns order like
 //! their values, which is what makes the radix selection exact.
 
 use super::depth::{DepthData, DepthImage, TrackAxis};
 
-/// Marker for a masked pixel (no return, saturated, NaN, out of range).
+/// Marker for a masked pixel (NaN, not positive, nearer than the range).
 pub const INVALID: f32 = -1.0;
+/// Marker for a pixel beyond the range: no return (Z16 0), saturation
+/// (`u16::MAX`) or a depth past the range's maximum. Below the horizon that is
+/// ground too far for the sensor (or a surface that returns nothing), not sky:
+/// the estimate counts it (`Estimate::far_below_samples`).
+pub const FAR: f32 = -2.0;
 /// Inverse depth of the sky (`d = +inf`).
 pub const SKY: f32 = 0.0;
 
@@ -45,6 +50,8 @@ pub struct InvGrid {
     pub across_idx: Vec<usize>,
     pub valid: usize,
     pub sky: usize,
+    /// Samples that are `FAR`.
+    pub far: usize,
     /// Inverse depth of every Z16 value, for the `(scale, range)` in `lut_key`:
     /// one load per pixel instead of a conversion and a division.
     lut: Vec<f32>,
@@ -170,6 +177,9 @@ fn inv_from_metres(d: f32, range: &DepthRange) -> f32 {
             return w;
         }
     }
+    if d64 > range.max_m && d.is_finite() {
+        return FAR;
+    }
     INVALID
 }
 
@@ -253,6 +263,12 @@ fn fill(
                     valid += (w >= 0.0) as usize;
                     w
                 });
+                // No return, saturation and every value past the range's end.
+                let hi = grid.lut_valid.map_or(usize::MAX, |(_, hi)| hi);
+                grid.far = hist[0] as usize
+                    + hist
+                        .get(hi + 1..)
+                        .map_or(0, |t| t.iter().map(|&c| c as usize).sum());
                 grid.hist = hist;
                 grid.lut = lut;
                 // `lut_valid` holds no SKY entry.
@@ -269,17 +285,19 @@ fn fill(
         }
     }
     // Counted per line in u32 lanes, which vectorise four wide.
-    let (mut valid, mut sky) = (0usize, 0usize);
+    let (mut valid, mut sky, mut far) = (0usize, 0usize, 0usize);
     for line in grid.w.chunks_exact(grid.per_line.max(1)) {
         valid += line.iter().map(|&w| (w >= 0.0) as u32).sum::<u32>() as usize;
         sky += line.iter().map(|&w| (w == SKY) as u32).sum::<u32>() as usize;
+        far += line.iter().map(|&w| (w == FAR) as u32).sum::<u32>() as usize;
     }
     grid.valid = valid;
     grid.sky = sky;
+    grid.far = far;
 }
 
 /// Inverse depth of each Z16 value: no return (0), saturation (`u16::MAX`) and
-/// depths outside `range` are `INVALID`. Also the valid values `lo..=hi` when
+/// depths past `range` are `FAR`, depths nearer than it `INVALID`. Also the valid values `lo..=hi` when
 /// each of them maps to a finite positive inverse depth (what counting needs).
 fn z16_table(scale_m: f64, range: &DepthRange) -> (Vec<f32>, Option<(usize, usize)>) {
     let lo = (range.min_m / scale_m).ceil().max(1.0);
@@ -290,6 +308,8 @@ fn z16_table(scale_m: f64, range: &DepthRange) -> (Vec<f32>, Option<(usize, usiz
             let zf = z as f64;
             if zf >= lo && zf <= hi {
                 inv_scale / z as f32
+            } else if z == 0 || zf > hi {
+                FAR
             } else {
                 INVALID
             }

@@ -684,3 +684,133 @@ fn the_fixed_model_needs_no_valid_depth() {
     assert_eq!(none.no_estimate, Some(NoEstimate::NoDepthFrame));
     assert!(none.spacing.chosen_m.is_none() && none.pitch_rad == 0.0);
 }
+
+// ---- ground beyond the range (no return below the horizon) ----
+
+fn z16(w: usize, h: usize, data: Vec<u16>, scale_m: f64) -> DepthImage {
+    DepthImage::new(w, h, DepthData::Z16 { data, scale_m }).unwrap()
+}
+
+#[test]
+fn ground_beyond_the_range_below_the_horizon_is_far_not_sky() {
+    // Nadir over a 20 m roof on the upper half; the lower half is ground 600 m
+    // away, beyond the sensor: Z16 0. Ignored, as before, the frame holds one
+    // depth, a span of 0 and no parallax bound at all (the spacing then comes
+    // from the other targets: silently too long). Now the far end is at
+    // infinity: span 1/20 per m, the parallax bound `px/(f/20)`.
+    let (w, h) = (64usize, 48usize);
+    let intr = Intrinsics::from_hfov_deg(w, h, 69.0, None).unwrap();
+    let f = intr.focal_px();
+    let p = EstimatorParams::with_model(Model::Quality);
+    let px = p.quality.parallax_px.unwrap();
+    let frame = |far: u16| {
+        let data: Vec<u16> = (0..w * h)
+            .map(|k| if k / w < h / 2 { 2000 } else { far })
+            .collect();
+        z16(w, h, data, 0.01)
+    };
+    let e = run(&frame(0), &intr, 0.0, &p);
+    assert!(e.is_ok(), "{:?}", e.no_estimate);
+    assert_eq!(e.far_below_samples, w * h / 2);
+    assert!(e.far_end_unbounded);
+    assert!(e.terms.names().contains(&"beyond_range"));
+    assert_eq!(e.inv_depth.unwrap().min_per_m, 0.0);
+    let b = e
+        .spacing
+        .parallax_m
+        .expect("the far end bounds the parallax");
+    assert!(
+        close(b, px / (f / 20.0), 1e-5),
+        "{b} vs {}",
+        px / (f / 20.0)
+    );
+    // The truth, had the sensor reached it (600 m, inside 655 m of Z16 range):
+    // a span of 1/20 − 1/600, so the spacing assumed is short of it by 1/30,
+    // never longer.
+    let t = run(&frame(60000), &intr, 0.0, &p);
+    assert_eq!((t.far_below_samples, t.far_end_unbounded), (0, false));
+    let bt = t.spacing.parallax_m.unwrap();
+    assert!(
+        b <= bt && b >= bt * (1.0 - 1.0 / 30.0 - 1e-6),
+        "{b} vs {bt}"
+    );
+    // A metric frame past the configured range says the same.
+    let mut pr = p.clone();
+    pr.depth_range.max_m = 65.0;
+    let m = metres(
+        w,
+        h,
+        (0..w * h)
+            .map(|k| if k / w < h / 2 { 20.0 } else { 600.0 })
+            .collect(),
+    );
+    let em = run(&m, &intr, 0.0, &pr);
+    assert_eq!(em.far_below_samples, w * h / 2);
+    assert!(close(em.spacing.parallax_m.unwrap(), b, 1e-6));
+}
+
+#[test]
+fn no_return_above_the_horizon_is_sky() {
+    // Pitched 70° forward with 90° along track: rays past t = cot 70° = 0.36
+    // look above the horizon. No return there is sky (or a tower out of
+    // range): it stays out of the depth range, as a metric frame's +inf does.
+    let (w, h) = (80usize, 20usize);
+    let intr = Intrinsics::from_hfov_deg(w, h, 90.0, None).unwrap();
+    let f = intr.focal_px();
+    let pitch = 70f64.to_radians();
+    let above = |i: usize| (i as f64 + 0.5 - w as f64 / 2.0) / f > 0.5;
+    let depth = |i: usize| 30.0 + i as f32 * 0.25;
+    let z: Vec<u16> = (0..w * h)
+        .map(|k| {
+            let i = k % w;
+            if above(i) {
+                0
+            } else {
+                (depth(i) * 100.0).round() as u16
+            }
+        })
+        .collect();
+    let m: Vec<f32> = (0..w * h)
+        .map(|k| {
+            let i = k % w;
+            if above(i) {
+                f32::INFINITY
+            } else {
+                (depth(i) * 100.0).round() / 100.0
+            }
+        })
+        .collect();
+    let p = EstimatorParams::with_model(Model::Quality);
+    let ez = run(&z16(w, h, z, 0.01), &intr, pitch, &p);
+    let em = run(&metres(w, h, m), &intr, pitch, &p);
+    assert!(ez.is_ok() && em.is_ok());
+    assert_eq!((ez.far_below_samples, ez.far_end_unbounded), (0, false));
+    assert!(!ez.terms.names().contains(&"beyond_range"));
+    let (a, b) = (
+        ez.spacing.parallax_m.unwrap(),
+        em.spacing.parallax_m.unwrap(),
+    );
+    assert!(close(a, b, 1e-5), "{a} vs {b}");
+}
+
+#[test]
+fn no_return_within_the_percentile_tail_leaves_the_range_alone() {
+    // Stripes at 20 m and 40 m with 2 pixels in 1000 without a return: fewer
+    // than the 0.5 % tail the robust range drops, so the range is the
+    // stripes' and the far end stays finite; the samples are still counted.
+    let (w, h) = (100usize, 10usize);
+    let intr = Intrinsics::from_hfov_deg(w, h, 69.0, None).unwrap();
+    let p = EstimatorParams::with_model(Model::Quality);
+    let clean: Vec<u16> = (0..w * h)
+        .map(|k| if (k % w / 10) % 2 == 0 { 2000 } else { 4000 })
+        .collect();
+    let mut holes = clean.clone();
+    holes[17] = 0;
+    holes[555] = 0;
+    let a = run(&z16(w, h, clean, 0.01), &intr, 0.0, &p);
+    let b = run(&z16(w, h, holes, 0.01), &intr, 0.0, &p);
+    assert_eq!((b.far_below_samples, b.far_end_unbounded), (2, false));
+    assert_eq!(a.inv_depth, b.inv_depth);
+    assert_eq!(a.spacing.parallax_m, b.spacing.parallax_m);
+    assert!(b.spacing.parallax_m.is_some());
+}
