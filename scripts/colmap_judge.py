@@ -26,8 +26,8 @@ one line on stderr for bad input, 1 if pycolmap itself fails.
 
 The --json object: images_total, images_registered, registered_fraction,
 models (how many the mapper made; model_used is the largest), mean_reprojection_px,
-points3d, intrinsics {given, final, focal_refined}, track_length_m (first to last
-centre), similarity {scale, rotation, translation_m, roll_about_track_from},
+points3d, intrinsics {given, final, focal_refined}, track_length_m (the way
+flown: the centres' consecutive distances, capture order), similarity {scale, rotation, translation_m, roll_about_track_from},
 centre_error_m / centre_error_fraction / rotation_error_deg (against
 transforms.json) / geo_rotation_error_deg (against geo.txt; null without one)
 {median, max} over the registered images, geo_images (images with angles in
@@ -370,7 +370,9 @@ def run(args):
         flip = np.diag([1.0, -1.0, -1.0])
         truth_r = [np.array([row[:3] for row in m[:3]]) @ flip for m in c2w]
         geo_r = [odm_rotation(*geo[n], np) if geo and n in geo else None for n in names]
-        report["track_length_m"] = float(np.linalg.norm(truth_c[-1] - truth_c[0]))
+        # The way flown, not first to last: over lanes flown back and forth the
+        # two ends are close. On one straight line the two agree.
+        report["track_length_m"] = float(np.linalg.norm(np.diff(truth_c, axis=0), axis=1).sum())
 
         by_name, per = {}, {}  # registered images by name; their errors by index
         if models:

@@ -276,3 +276,52 @@ async fn autopilot_distance_mode_sets_the_distance_and_logs_the_autopilots_trigg
         assert!(r.image.is_none());
     }
 }
+
+/// Two lanes flown back and forth (`alfd sim --lanes 2`): every lane is flown, the flight ends
+/// at the end of the last one, and every pose is where its picture was taken, also while the
+/// vehicle turns 90° between lanes: between 10 Hz attitude samples the pose follows the body
+/// rates, where slerp cut through a turn's angular acceleration by 0.17° (core::pose's
+/// `a_turn_between_samples_follows_the_body_rates`).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_lawnmower_flies_every_lane_and_logs_its_turns_at_the_true_attitude() {
+    let _turn = ONE_AT_A_TIME.lock().await;
+    let dir = tempfile::tempdir().unwrap();
+    let spacing_m = 30.0;
+    let a = SimArgs {
+        lanes: 2,
+        lane_spacing_m: spacing_m,
+        length_m: Some(30.0),
+        ..args(dir.path(), CaptureMode::Frame)
+    };
+    let out = run_sim(a, std::future::pending())
+        .await
+        .expect("the sim runs");
+    let m = read_manifest(&out.flight_dir.join("manifest.jsonl")).unwrap();
+    let records = &m.records;
+    let on_lane = |r: &CaptureRecord, east_m: f64| (r.position.east_m - east_m).abs() < 1.0;
+    assert!(
+        records.iter().any(|r| on_lane(r, 0.0)),
+        "none on the first lane"
+    );
+    assert!(
+        records.iter().any(|r| on_lane(r, spacing_m)),
+        "none on the second lane"
+    );
+    let last = records.last().expect("captures");
+    assert!(
+        on_lane(last, spacing_m) && last.position.north_m < 3.0,
+        "the flight ends where the second lane does (its south end): last capture at {:.1} m N, {:.1} m E",
+        last.position.north_m,
+        last.position.east_m
+    );
+    // Captures inside the turns (more than 2° off every lane and transit heading) are there.
+    let turning = records
+        .iter()
+        .filter(|r| {
+            let y = r.attitude.yaw_deg.rem_euclid(90.0);
+            y > 2.0 && y < 88.0
+        })
+        .count();
+    assert!(turning >= 6, "{turning} captures inside the turns");
+    check_against_truth(&out, records);
+}

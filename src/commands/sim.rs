@@ -50,9 +50,16 @@ pub struct Args {
     /// Forward MAVLink to a ground station: udpout:HOST:PORT.
     #[arg(long)]
     gcs: Option<String>,
-    /// Fly only this much of the line (metres).
+    /// Fly only this much of the line (metres); with --lanes, each lane's length.
     #[arg(long)]
     length_m: Option<f64>,
+    /// Fly this many parallel lanes back and forth (a lawnmower: what a
+    /// reconstruction wants; one strip leaves lateral position against roll).
+    #[arg(long, default_value_t = 1)]
+    lanes: u32,
+    /// East of the previous lane, metres (with --lanes).
+    #[arg(long, default_value_t = 40.0)]
+    lane_spacing_m: f64,
     #[arg(long)]
     no_progress: bool,
 }
@@ -67,6 +74,22 @@ pub fn run(a: Args) -> Result<ExitCode> {
         if !(v.is_finite() && v > 0.0 && v <= max) {
             return Err(bad(format!(
                 "{name} {v}: must be positive and at most {max}"
+            )));
+        }
+    }
+    if !(1..=20).contains(&a.lanes) {
+        return Err(bad(format!("--lanes {}: must be 1 to 20", a.lanes)));
+    }
+    if !(a.lane_spacing_m.is_finite() && a.lane_spacing_m > 0.0 && a.lane_spacing_m <= 1000.0) {
+        return Err(bad(format!(
+            "--lane-spacing-m {}: must be positive and at most 1000",
+            a.lane_spacing_m
+        )));
+    }
+    if let Some(l) = a.length_m {
+        if !(l.is_finite() && l > 0.0) {
+            return Err(bad(format!(
+                "--length-m {l}: must be a positive number of metres"
             )));
         }
     }
@@ -93,6 +116,8 @@ pub fn run(a: Args) -> Result<ExitCode> {
         gcs: a.gcs,
         progress: !a.no_progress && std::io::stderr().is_terminal(),
         length_m: a.length_m,
+        lanes: a.lanes,
+        lane_spacing_m: a.lane_spacing_m,
         seed: 1,
         faults: None,
         depth_outages: Vec::new(),

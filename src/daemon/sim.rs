@@ -45,8 +45,13 @@ pub struct SimArgs {
     /// Forward MAVLink to a ground station (`udpout:HOST:PORT`).
     pub gcs: Option<String>,
     pub progress: bool,
-    /// Stop after this much of the line (metres); `None`: all of it.
+    /// Stop after this much of the line (metres); `None`: all of it. With
+    /// `lanes` > 1, the length of each lane.
     pub length_m: Option<f64>,
+    /// Parallel lanes flown back and forth (a lawnmower), each `lane_spacing_m`
+    /// east of the last; 1: the single line.
+    pub lanes: u32,
+    pub lane_spacing_m: f64,
     pub seed: u64,
     /// firmware-sim's faults (corruption, drops, scheduled link loss, reboot,
     /// GPS glitch, silence), as in its config.
@@ -146,6 +151,8 @@ impl Default for SimArgs {
             gcs: None,
             progress: true,
             length_m: None,
+            lanes: 1,
+            lane_spacing_m: 40.0,
             seed: 1,
             faults: None,
             depth_outages: Vec::new(),
@@ -313,7 +320,9 @@ pub async fn run_sim_with(
     };
     let scene = Arc::new(scene);
 
-    // The simulated autopilot: a line north over the scene's survey.
+    // The simulated autopilot: a line north over the scene's survey, or lanes
+    // east of it flown back and forth (one strip leaves a reconstruction's
+    // lateral positions to trade against roll; a second one fixes them).
     let mut sc = SimConfig {
         transport: Transport::Pty {
             link: Some(flight_dir.join("ttyFC")),
@@ -327,6 +336,20 @@ pub async fn run_sim_with(
     let line_m = scene.survey.end_x_m - scene.survey.start_x_m;
     sc.survey.length_m = line_m;
     sc.survey.lanes = 1;
+    let lanes = args.lanes.max(1);
+    let stop_at_m = args.length_m.unwrap_or(line_m).min(line_m);
+    if lanes > 1 {
+        sc.survey.pattern = firmware_sim::Pattern::Lawnmower;
+        sc.survey.length_m = stop_at_m;
+        sc.survey.lanes = lanes;
+        sc.survey.lane_spacing_m = args.lane_spacing_m;
+    }
+    // The way from the start to the end of the last lane.
+    let path_m = stop_at_m * lanes as f64 + args.lane_spacing_m * (lanes - 1) as f64;
+    // Where the last lane ends: north at the far end after an odd number of
+    // lanes, back at the start after an even one.
+    let last_lane_east_m = args.lane_spacing_m * (lanes - 1) as f64;
+    let ends_north = lanes % 2 == 1;
     sc.survey.speed_mps = args.speed_mps;
     // Without wander, as while the synthetic camera rendered pitch only (it now
     // renders the whole attitude, issue 14): the sim's documented figures were
@@ -376,7 +399,6 @@ pub async fn run_sim_with(
             }
         })
     };
-    let stop_at_m = args.length_m.unwrap_or(line_m).min(line_m);
 
     let mount = config.depth.mount_pitch_rad;
     let link_slot: Arc<OnceLock<LinkHandle>> = Arc::new(OnceLock::new());
@@ -437,7 +459,7 @@ pub async fn run_sim_with(
 
     // Progress along the line, from the frames the daemon processes.
     let bar = args.progress.then(|| {
-        let b = indicatif::ProgressBar::new(stop_at_m.ceil() as u64);
+        let b = indicatif::ProgressBar::new(path_m.ceil() as u64);
         b.set_style(
             indicatif::ProgressStyle::with_template("{spinner} {bar:40} {pos}/{len} m  {msg}")
                 .expect("a valid template"),
@@ -447,9 +469,14 @@ pub async fn run_sim_with(
     let captures_seen = Arc::new(Mutex::new(0u64));
     let on_sample: Option<SampleHook> = bar.clone().map(|b| {
         let seen = captures_seen.clone();
+        let (mut flown_m, mut last) = (0.0f64, None::<[f64; 3]>);
         Box::new(move |s: &FrameSample| {
             if let Some(p) = s.pos_ned_m {
-                b.set_position(p[0].max(0.0) as u64);
+                if let Some(l) = last {
+                    flown_m += (p[0] - l[0]).hypot(p[1] - l[1]);
+                }
+                last = Some(p);
+                b.set_position(flown_m as u64);
             }
             if s.captured {
                 let mut n = seen.lock().unwrap_or_else(|p| p.into_inner());
@@ -465,11 +492,17 @@ pub async fn run_sim_with(
         async move {
             // Past the end of the line (or the requested length), or a deadline
             // well past the time the line takes, whichever is first.
-            let limit = mono_ns() + ((stop_at_m / args.speed_mps.max(0.1) + 30.0) * 1e9) as u64;
+            let limit = mono_ns() + ((path_m / args.speed_mps.max(0.1) + 30.0) * 1e9) as u64;
             loop {
                 tokio::time::sleep(Duration::from_millis(50)).await;
-                let tr = sim.truth_at_mono_ns(mono_ns());
-                if tr.pos_ned_m[0] >= stop_at_m - 0.05 || mono_ns() > limit {
+                let [north, east, _] = sim.truth_at_mono_ns(mono_ns()).pos_ned_m;
+                let on_last_lane = east >= last_lane_east_m - 0.05;
+                let at_end = if ends_north {
+                    north >= stop_at_m - 0.05
+                } else {
+                    north <= 0.05
+                };
+                if (on_last_lane && at_end) || mono_ns() > limit {
                     return;
                 }
             }

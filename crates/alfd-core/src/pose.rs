@@ -1,5 +1,6 @@
 //! Pose buffer: recent positions (local NED metres) and attitudes (quaternions) keyed by the
-//! autopilot's boot time, interpolated at any instant (linear position, slerp attitude) and
+//! autopilot's boot time, interpolated at any instant (linear position; attitude by a cubic
+//! through both samples and both body rates, slerp where the rates disagree with the samples) and
 //! extrapolated with velocity and body rates only up to a horizon; beyond it the answer is `Stale`.
 
 use glam::{DQuat, DVec3};
@@ -180,7 +181,7 @@ impl PoseBuffer {
             Some(j) => {
                 let b = self.att[j];
                 let u = (t_ns - a.time_ns) as f64 / (b.time_ns - a.time_ns) as f64;
-                Ok((a.q.slerp(b.q, u), 0))
+                Ok((between(&a, &b, u), 0))
             }
             None => {
                 let age = t_ns - a.time_ns;
@@ -212,6 +213,55 @@ impl PoseBuffer {
             q,
             extrapolated_ns: ep.max(ea),
         })
+    }
+}
+
+/// The attitude a fraction `u` of the way from sample `a` to `b`: `a·exp(φ(u))`
+/// with `φ` the cubic Hermite through `0` and the rotation `θ` from `a` to `b`
+/// (in `a`'s body axes) whose ends move at the two samples' body rates.
+/// Slerp (`φ = u·θ`) cuts through a turn's angular acceleration: at 10 Hz in
+/// a 90° turn eased over 2 s it is 0.17° off at the worst, more than a pixel
+/// of a 465 px camera; the cubic follows it to the rates' accuracy.
+///
+/// Body rates relate to `φ` by `ω = J_r(φ)·φ'` (the right Jacobian of SO(3)),
+/// so `φ'(0) = ω_a` and `φ'(1) = J_r(θ)⁻¹·ω_b`, per unit of `u` times the
+/// interval. Rates that do not agree with the samples' own rotation (their
+/// mean more than half of `|θ|` plus a thousandth of a radian from `θ`: an
+/// autopilot that sends none, a glitch) give slerp, as do samples more than
+/// 2.5 rad apart, where no cubic over one interval is to be trusted.
+fn between(a: &AttitudeSample, b: &AttitudeSample, u: f64) -> DQuat {
+    let slerp = || a.q.slerp(b.q, u);
+    let dt_s = b.time_ns.saturating_sub(a.time_ns) as f64 * 1e-9;
+    let mut rel = a.q.inverse() * b.q;
+    if rel.w < 0.0 {
+        rel = -rel;
+    }
+    let theta = rel.to_scaled_axis();
+    let angle = theta.length();
+    if !(angle.is_finite() && angle <= 2.5 && dt_s > 0.0) {
+        return slerp();
+    }
+    // J_r(θ)⁻¹ = I + ½[θ]× + c·[θ]×², c → 1/12 + |θ|²/720 for small |θ|.
+    let c = if angle < 1e-2 {
+        1.0 / 12.0 + angle * angle / 720.0
+    } else {
+        1.0 / (angle * angle) - (1.0 + angle.cos()) / (2.0 * angle * angle.sin())
+    };
+    let inv_jr = |v: DVec3| v + 0.5 * theta.cross(v) + c * theta.cross(theta.cross(v));
+    let d0 = a.rates_rps * dt_s;
+    let d1 = inv_jr(b.rates_rps * dt_s);
+    if !(d0.is_finite() && d1.is_finite())
+        || (0.5 * (d0 + d1) - theta).length() > 0.5 * angle + 1e-3
+    {
+        return slerp();
+    }
+    let (u2, u3) = (u * u, u * u * u);
+    let phi = (u3 - 2.0 * u2 + u) * d0 + (3.0 * u2 - 2.0 * u3) * theta + (u3 - u2) * d1;
+    let q = (a.q * DQuat::from_scaled_axis(phi)).normalize();
+    if q.is_finite() {
+        q
+    } else {
+        slerp()
     }
 }
 
@@ -262,5 +312,60 @@ mod tests {
             vel_ned_mps: v,
         };
         assert_eq!(b.push_position(dup), Err(PushError::OutOfOrder));
+    }
+
+    /// A 90° turn eased over 2 s (firmware-sim's lane change, `yaw_at`) with
+    /// the vehicle pitched 8° and rolling ±6° twice a second, sampled at 10 Hz
+    /// with its true body rates: the cubic follows it to a hundredth of a
+    /// degree, slerp misses by 0.17°.
+    #[test]
+    fn a_turn_between_samples_follows_the_body_rates() {
+        let (turn, dur) = (std::f64::consts::FRAC_PI_2, 2.0);
+        let q_at = |t: f64| {
+            let x = (t / dur).clamp(0.0, 1.0);
+            let yaw = turn * x * x * (3.0 - 2.0 * x);
+            DQuat::from_rotation_z(yaw)
+                * DQuat::from_rotation_y(8f64.to_radians())
+                * DQuat::from_rotation_x(0.1 * (2.0 * t).sin())
+        };
+        // Body rates ω = 2·(q⁻¹·q̇).xyz, by a central difference.
+        let rates_at = |t: f64| {
+            let h = 1e-6;
+            let dq = (q_at(t + h) - q_at(t - h)) * (1.0 / (2.0 * h));
+            let w = q_at(t).inverse() * dq;
+            DVec3::new(w.x, w.y, w.z) * 2.0
+        };
+        let mut b = buf();
+        let mut zero = buf();
+        let base = 1_000_000_000u64;
+        for k in 0..=25u64 {
+            let t = k as f64 * 0.1;
+            let (time_ns, q) = (base + k * 100_000_000, q_at(t));
+            let rates_rps = rates_at(t);
+            b.push_attitude(AttitudeSample {
+                time_ns,
+                q,
+                rates_rps,
+            })
+            .unwrap();
+            let rates_rps = DVec3::ZERO;
+            zero.push_attitude(AttitudeSample {
+                time_ns,
+                q,
+                rates_rps,
+            })
+            .unwrap();
+        }
+        let off_deg = |a: DQuat, b: DQuat| a.angle_between(b).to_degrees();
+        let (mut cubic, mut slerp) = (0f64, 0f64);
+        for k in 0..250u64 {
+            let t_ns = base + k * 10_000_000 + 5_000_000;
+            let truth = q_at((t_ns - base) as f64 * 1e-9);
+            cubic = cubic.max(off_deg(b.attitude_at(t_ns).unwrap().0, truth));
+            // Rates of 0 while the samples turn are not believed: slerp.
+            slerp = slerp.max(off_deg(zero.attitude_at(t_ns).unwrap().0, truth));
+        }
+        assert!(cubic < 0.01, "cubic {cubic} deg");
+        assert!((0.15..0.25).contains(&slerp), "slerp {slerp} deg");
     }
 }
