@@ -1,4 +1,4 @@
-//! COLMAP as a second judge: `scripts/colmap_judge.py` (pycolmap, CPU) on a short `alfd sim`
+//! COLMAP as a second judge: `scripts/colmap_judge.py` (pycolmap, CPU) on a 200 m `alfd sim`
 //! flight, start-up turn included, must register nearly every capture, reproject well, put the
 //! cameras where `transforms.json` says and turn every image as `transforms.json` and
 //! `geo.txt` say, after a similarity. Skipped, with a message, only when pycolmap is missing
@@ -38,10 +38,14 @@ fn colmap_registers_a_short_sim_flight_where_its_transforms_say() {
     }
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("sim");
-    // 60 m of the default scene's line at 100 m: about two dozen 640 x 480 captures, so the
-    // flight and COLMAP together stay around half a minute of CPU.
+    // 200 m of the default scene's line at 100 m (the issue's own flight): about 200 640 x 480
+    // captures, two to three minutes of COLMAP on two cores. The first 60 m are open fields,
+    // flat ground on which a nadir camera's sideways position and its roll trade against each
+    // other in any reconstruction: COLMAP put single centres 0.3-0.9 m off there (0.5-1.5 %
+    // of 60 m) while alfd's logged attitude was within 0.002 deg of the picture's. By 200 m
+    // the line has crossed the courtyard block, whose relief fixes them: worst 0.20-0.23 m.
     let sim = Command::new(env!("CARGO_BIN_EXE_alfd"))
-        .args(["sim", "--length-m", "60", "--no-progress", "--out"])
+        .args(["sim", "--length-m", "200", "--no-progress", "--out"])
         .arg(&out)
         .output()
         .expect("alfd runs");
@@ -92,7 +96,7 @@ fn colmap_registers_a_short_sim_flight_where_its_transforms_say() {
         total, jpegs as u64,
         "transforms.json names every saved capture"
     );
-    assert!(total >= 10, "a 60 m flight gives ~24 captures, got {total}");
+    assert!(total >= 100, "a 200 m flight gives ~200 captures, got {total}");
     assert!(
         10 * registered >= 9 * total,
         "COLMAP registered {registered} of {total} images"
@@ -102,23 +106,20 @@ fn colmap_registers_a_short_sim_flight_where_its_transforms_say() {
         reprojection_px < 1.5,
         "mean reprojection error {reprojection_px:.3} px"
     );
-    // The median centre is asserted. The issue asks every centre within 1 %; that is NOT
-    // asserted, because it does not hold on every run: with poses extrapolated past the
-    // newest 10 Hz attitude the worst was 0.6 to 4.7 % in five runs; interpolated, 0.45 to
-    // 0.54 % in five measured runs and under 1 % in three more, then 1.06 % in one (COLMAP's
-    // own rotations 0.3-0.4 deg off on this single straight strip). The max is printed so each run says where it stands.
+    // Every camera centre within 1 % of the track after the similarity (2 m here), and the
+    // median within 0.1 %.
     let (centre_median, centre_max) = (
         number(&report, &["centre_error_fraction", "median"]),
         number(&report, &["centre_error_fraction", "max"]),
     );
     println!(
-        "camera centres: median {:.2} %, max {:.2} % of the track",
+        "camera centres: median {:.3} %, max {:.3} % of the track",
         100.0 * centre_median,
         100.0 * centre_max
     );
     assert!(
-        centre_median < 0.01,
-        "median camera centre off by {:.2} % of the track after the similarity (max {:.2} %)",
+        centre_max < 0.01 && centre_median < 0.001,
+        "camera centres off by {:.3} % (median) and {:.3} % (worst) of the track after the similarity",
         100.0 * centre_median,
         100.0 * centre_max
     );
