@@ -96,7 +96,10 @@ fn colmap_registers_a_short_sim_flight_where_its_transforms_say() {
         total, jpegs as u64,
         "transforms.json names every saved capture"
     );
-    assert!(total >= 100, "a 200 m flight gives ~200 captures, got {total}");
+    assert!(
+        total >= 100,
+        "a 200 m flight gives ~200 captures, got {total}"
+    );
     assert!(
         10 * registered >= 9 * total,
         "COLMAP registered {registered} of {total} images"
