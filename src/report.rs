@@ -134,6 +134,18 @@ pub fn estimate_text(
         input.pitch_deg,
         100.0 * e.valid_fraction
     );
+    if e.far_below_samples > 0 {
+        let _ = writeln!(
+            s,
+            "no return      {:.1} % of samples below the horizon (ground beyond the range?){}",
+            100.0 * e.far_below_samples as f64 / e.samples.max(1) as f64,
+            if e.far_end_unbounded {
+                ": the far end is taken at infinity"
+            } else {
+                ": within the percentile tail"
+            }
+        );
+    }
     if let Some(r) = e.no_estimate {
         let _ = writeln!(s, "no estimate: {}", r.as_str());
         return s;
@@ -155,18 +167,6 @@ pub fn estimate_text(
         );
     } else {
         let _ = writeln!(s, "depth range    no surface in view (sky only)");
-    }
-    if e.far_below_samples > 0 {
-        let _ = writeln!(
-            s,
-            "no return      {:.1} % of samples below the horizon (ground beyond the range?){}",
-            100.0 * e.far_below_samples as f64 / e.samples.max(1) as f64,
-            if e.far_end_unbounded {
-                ": the far end is taken at infinity"
-            } else {
-                ": within the percentile tail"
-            }
-        );
     }
     if let Some(o) = e.occlusion {
         let _ = writeln!(

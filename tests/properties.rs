@@ -320,3 +320,81 @@ proptest! {
         }
     }
 }
+
+/// A Z16 frame (1 cm units, 1–600 m) in random blocks, a random share of its pixels without
+/// a return (0), and a pitch: 9 in 10 at nadir, where the comparison below is exact.
+fn no_return_case() -> impl Strategy<Value = (usize, usize, Vec<u16>, Intrinsics, f64)> {
+    (1usize..=48, 1usize..=24)
+        .prop_flat_map(|(w, h)| {
+            (
+                Just(w),
+                Just(h),
+                proptest::collection::vec(100u16..=60_000, 1..5),
+                proptest::collection::vec(0usize..5, w * h),
+                0.0f64..0.8,
+                proptest::collection::vec(0.0f64..1.0, w * h),
+                intrinsics(w, h),
+                prop_oneof![9 => Just(0.0f64), 1 => -80.0f64..80.0],
+            )
+        })
+        .prop_map(|(w, h, levels, pick, far_frac, coin, intr, pitch_deg)| {
+            let z = pick
+                .iter()
+                .zip(&coin)
+                .map(|(&k, &c)| {
+                    if c < far_frac {
+                        0
+                    } else {
+                        levels[k % levels.len()]
+                    }
+                })
+                .collect();
+            (w, h, z, intr, pitch_deg.to_radians())
+        })
+}
+
+proptest! {
+    #![proptest_config(config())]
+
+    /// Ground beyond the range (issue 13's blind spot): no-return pixels below the horizon
+    /// are counted exactly, never make a number non-finite, and put the depth range's far
+    /// end at infinity only when they outnumber the low percentile's tail. At nadir, the
+    /// spacing they give is never longer than if those pixels had returned a depth beyond
+    /// every other one (650 m): treating them as far can only shorten it, never leave the
+    /// span understated.
+    #[test]
+    fn no_return_below_the_horizon_never_lengthens_the_spacing(
+        (w, h, z, intr, pitch) in no_return_case()
+    ) {
+        let p = EstimatorParams { score: None, ..EstimatorParams::with_model(Model::Quality) };
+        let frame = |data: Vec<u16>| {
+            DepthImage::new(w, h, DepthData::Z16 { data, scale_m: 0.01 }).unwrap()
+        };
+        let e = Estimator::new(p.clone()).estimate_at(&frame(z.clone()), &intr, pitch, 1).unwrap();
+        let zeros = z.iter().filter(|&&v| v == 0).count();
+        prop_assert!(e.far_below_samples <= zeros);
+        if pitch == 0.0 {
+            prop_assert_eq!(e.far_below_samples, zeros);
+        }
+        prop_assert_eq!(e.terms.beyond_range, e.far_end_unbounded);
+        let s = e.spacing;
+        for x in [s.parallax_m, s.views_m, s.coverage_m, s.mmds_m, s.permissible_m, s.chosen_m].into_iter().flatten() {
+            prop_assert!(x.is_finite() && x > 0.0, "{:?}", s);
+        }
+        if let Some(i) = e.inv_depth {
+            prop_assert!(finite_nonneg(i.min_per_m) && i.min_per_m <= i.max_per_m);
+            if e.far_end_unbounded {
+                prop_assert_eq!(i.min_per_m, 0.0);
+            }
+        }
+        if pitch == 0.0 && e.is_ok() {
+            let returned: Vec<u16> = z.iter().map(|&v| if v == 0 { 65_000 } else { v }).collect();
+            let r = Estimator::new(p).estimate_at(&frame(returned), &intr, pitch, 1).unwrap();
+            let (far, near) = (
+                e.spacing.parallax_m.unwrap_or(f64::INFINITY),
+                r.spacing.parallax_m.unwrap_or(f64::INFINITY),
+            );
+            prop_assert!(far <= near * (1.0 + 1e-12), "{far} m with no return, {near} m with 650 m");
+        }
+    }
+}

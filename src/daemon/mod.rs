@@ -10,6 +10,7 @@ pub mod estimator_task;
 pub mod latency;
 pub mod outbox;
 pub mod run;
+mod serve;
 pub mod shutdown;
 #[cfg(feature = "sim")]
 pub mod sim;

@@ -1,15 +1,16 @@
 //! The daemon wired together, and only that: the link first (its handle goes to whoever
 //! needs it), then the writer thread ([`super::writer`]), the depth and estimator threads
-//! ([`super::estimator_task`]), and the coordinator's loop, which performs what the pure
-//! [`Coordinator`] decides through [`super::outbox`]. One shutdown ([`super::shutdown`]), its order written once at
-//! the end of [`run`]. Every queue is bounded; each says its policy where it is made.
+//! ([`super::estimator_task`]), and the coordinator's loop ([`super::serve`]), which performs
+//! what the pure [`Coordinator`] decides through [`super::outbox`]. One shutdown
+//! ([`super::shutdown`]), its order written once at the end of [`run`]. Every queue is
+//! bounded; each says its policy where it is made.
 
 use super::coordinator::{Coordinator, EstimatorView, LOCATING_MAX};
 use super::estimator_task::{
-    depth_thread, estimator_thread, Counters, Decided, EstimatorCtx, EstimatorReport, Ticks,
-    DECIDED_QUEUE,
+    depth_thread, estimator_thread, Counters, EstimatorCtx, EstimatorReport, Ticks, DECIDED_QUEUE,
 };
-use super::outbox::{now, reserve, sleep_until, tick, written, Outbox};
+use super::outbox::Outbox;
+use super::serve::Loop;
 use super::shutdown::{self, Stage};
 use super::writer::{
     writer_thread, Space, TlogQueue, WriteJob, WriterCtx, WriterReport, Written, WRITE_QUEUE,
@@ -188,55 +189,25 @@ pub async fn run(
         .link
         .clone()
         .ok_or_else(|| RunError::Config("no [mavlink] section: the daemon needs a link".into()))?;
-    let store: BoxedStore = match options.store.take() {
-        Some(s) => s,
-        None => Box::new(
-            DirStore::open(&options.flight_dir)
-                .map_err(|e| RunError::Store(options.flight_dir.clone(), e.to_string()))?,
-        ),
-    };
-    let last_seq = store
-        .manifest_bytes()
-        .map(|b| {
-            parse_manifest(&b)
-                .records
-                .iter()
-                .map(|r| r.seq)
-                .max()
-                .unwrap_or(0)
-        })
-        .unwrap_or(0);
+    let (store, last_seq) = open_store(&mut options)?;
     let (stage, stop) = shutdown::channel();
     let rt = tokio::runtime::Handle::current();
 
     // The link first: everything else gets its handle.
-    let (mut link_task, link, mut link_events) = link::new(link_cfg);
+    let (mut link_task, link, link_events) = link::new(link_cfg);
     if let Some(f) = options.on_link.take() {
         f(&link);
     }
     // The link's tap is bounded (its own policy); frames go on to the tlog's queue, which
     // drops its oldest when the writer is behind.
-    let (tap_tx, mut tap_rx) = mpsc::channel::<TapFrame>(4096);
+    let (tap_tx, tap_rx) = mpsc::channel::<TapFrame>(4096);
     link_task.set_tap(tap_tx);
     let link_join = {
         let mut stop = stop.clone();
         tokio::spawn(link_task.run(async move { stop.reached(Stage::Done).await }))
     };
     let tlog = Arc::new(TlogQueue::default());
-    let tap_forward = {
-        let (tlog, mut stop) = (tlog.clone(), stop.clone());
-        tokio::spawn(async move {
-            loop {
-                tokio::select! {
-                    f = tap_rx.recv() => match f {
-                        Some(f) => tlog.push(f),
-                        None => return,
-                    },
-                    _ = stop.reached(Stage::Done) => return,
-                }
-            }
-        })
-    };
+    let tap_forward = tokio::spawn(forward_tap(tap_rx, tlog.clone(), stop.clone()));
 
     // The colour frames, and the writer.
     let (frame_at, frame_thread) = match devices.frames {
@@ -255,7 +226,7 @@ pub async fn run(
     let saves_frames = frame_at.is_some();
     let space = Arc::new(Space::default());
     let (writer_tx, writer_rx) = mpsc::channel::<WriteJob>(WRITE_QUEUE);
-    let (written_tx, mut written_rx) = mpsc::channel::<Written>(WRITTEN_QUEUE);
+    let (written_tx, written_rx) = mpsc::channel::<Written>(WRITTEN_QUEUE);
     let writer = {
         let ctx = WriterCtx {
             store,
@@ -289,8 +260,8 @@ pub async fn run(
     };
     let intrinsics = depth.intrinsics();
     let (depth_tx, depth_rx) = std::sync::mpsc::sync_channel(1);
-    let (decided_tx, mut decided_rx) = mpsc::channel(DECIDED_QUEUE);
-    let (view_tx, mut view_rx) = watch::channel::<Option<EstimatorView>>(None);
+    let (decided_tx, decided_rx) = mpsc::channel(DECIDED_QUEUE);
+    let (view_tx, view_rx) = watch::channel::<Option<EstimatorView>>(None);
     let depth_join = {
         let (fail, stop, counters) = (decided_tx.clone(), stop.clone(), counters.clone());
         spawn_thread("alfd-depth", move || {
@@ -313,59 +284,28 @@ pub async fn run(
         })
     };
 
-    let mut co = Coordinator::new(&config, last_seq, saves_frames.then_some(intrinsics));
-    let (located_tx, mut located_rx) = mpsc::channel(LOCATING_MAX);
-    let mut out = Outbox {
+    // The coordinator, last: it takes from all of the above.
+    let (located_tx, located_rx) = mpsc::channel(LOCATING_MAX);
+    let mut lp = Loop {
+        co: Coordinator::new(&config, last_seq, saves_frames.then_some(intrinsics)),
+        out: Outbox {
+            link: link.clone(),
+            located: located_tx,
+            writer: Some(writer_tx),
+            backlog: VecDeque::new(),
+        },
         link: link.clone(),
-        located: located_tx,
-        writer: Some(writer_tx),
-        backlog: VecDeque::new(),
+        link_events,
+        decided: decided_rx,
+        views: view_rx,
+        written: written_rx,
+        located: located_rx,
+        space,
+        counters: counters.clone(),
     };
-    let ready = co.ready();
-    out.perform(&mut co, ready).await;
+    lp.start().await;
     let _ = options.notifier.ready();
-    let pet = options
-        .notifier
-        .watchdog_interval()
-        .unwrap_or(Duration::from_secs(3600));
-    let mut watchdog = tokio::time::interval(pet);
-    let mut second = tokio::time::interval(Duration::from_secs(1));
-    second.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    tokio::pin!(shutdown);
-    let mut source_error = None;
-    loop {
-        let due = co.next_due_ns().map(|t| {
-            tokio::time::Instant::now() + Duration::from_nanos(t.saturating_sub(mono_ns()))
-        });
-        let actions = tokio::select! {
-            _ = &mut shutdown => break,
-            d = decided_rx.recv() => match d {
-                None => break,
-                Some(Decided::SourceFailed(e)) => { source_error = Some(e); break; }
-                Some(Decided::Capture(r)) => co.on_decided(*r),
-            },
-            Ok(()) = view_rx.changed() => {
-                let v = view_rx.borrow_and_update().clone();
-                match v {
-                    Some(v) => co.on_estimate(v, now(&link).await),
-                    None => Vec::new(),
-                }
-            }
-            Some(ev) = link_events.recv() => co.on_link_event(ev, now(&link).await),
-            Some(w) = written_rx.recv() => written(&mut co, w),
-            Some((id, l)) = located_rx.recv() => co.on_located(id, l),
-            Some(permit) = reserve(out.writer.as_ref()), if !out.backlog.is_empty() => {
-                if let Some(job) = out.backlog.pop_front() {
-                    permit.send(job);
-                }
-                Vec::new()
-            }
-            _ = second.tick() => tick(&mut co, &link, &space, &counters).await,
-            _ = sleep_until(due), if due.is_some() => tick(&mut co, &link, &space, &counters).await,
-            _ = watchdog.tick() => { let _ = options.notifier.watchdog(); Vec::new() }
-        };
-        out.perform(&mut co, actions).await;
-    }
+    let source_error = lp.serve(shutdown, &options.notifier).await;
 
     // The shutdown, in order: stop taking work (sources, estimator, interval captures);
     // log the captures already decided; close the writer's queue so it flushes the tlog and
@@ -373,13 +313,7 @@ pub async fn run(
     let stop_began_ns = mono_ns();
     let _ = options.notifier.stopping();
     stage.advance(Stage::Stopping);
-    let deadline = tokio::time::Instant::now() + Duration::from_millis(600);
-    while let Ok(Some(d)) = tokio::time::timeout_at(deadline, decided_rx.recv()).await {
-        if let Decided::Capture(r) = d {
-            let a = co.on_decided(*r);
-            out.perform(&mut co, a).await;
-        }
-    }
+    lp.take_decided(Duration::from_millis(600)).await;
     // Threads blocked in a device read are left behind rather than holding the exit past
     // its budget; normally they end within a frame.
     let est_report = tokio::time::timeout(
@@ -394,27 +328,8 @@ pub async fn run(
     .and_then(|r| r.ok())
     .unwrap_or_default();
     drop(frame_thread);
-    // Hand over the backlog and the captures still waiting for their pose (each within
-    // LOCATE_WAIT), taking the writer's answers meanwhile (it waits on them).
-    while !out.backlog.is_empty() || co.locating() > 0 {
-        let actions = tokio::select! {
-            Some(permit) = reserve(out.writer.as_ref()) => {
-                if let Some(job) = out.backlog.pop_front() {
-                    permit.send(job);
-                }
-                Vec::new()
-            }
-            Some(w) = written_rx.recv() => written(&mut co, w),
-            Some((id, l)) = located_rx.recv(), if co.locating() > 0 => co.on_located(id, l),
-            else => break,
-        };
-        out.perform(&mut co, actions).await;
-    }
-    out.writer = None;
-    while let Some(w) = written_rx.recv().await {
-        let a = written(&mut co, w);
-        out.perform(&mut co, a).await;
-    }
+    lp.hand_over().await;
+    lp.close_writer().await;
     let wreport = tokio::task::spawn_blocking(move || writer.join())
         .await
         .ok()
@@ -437,12 +352,53 @@ pub async fn run(
         flight_dir: options.flight_dir.clone(),
         tlog_frames_dropped: tlog.dropped(),
         shutdown_ns: mono_ns().saturating_sub(stop_began_ns),
-        ..report(co, est_report, &counters, &link, wreport)
+        ..report(lp.co, est_report, &counters, &link, wreport)
     };
     if let Some(l) = &report.latency {
         tracing::info!("{l}");
     }
     Ok(report)
+}
+
+/// The capture store (a directory on disk unless the caller handed one in) and the last
+/// sequence number of its manifest, which numbering continues after.
+fn open_store(options: &mut RunOptions) -> Result<(BoxedStore, u64), RunError> {
+    let store: BoxedStore = match options.store.take() {
+        Some(s) => s,
+        None => Box::new(
+            DirStore::open(&options.flight_dir)
+                .map_err(|e| RunError::Store(options.flight_dir.clone(), e.to_string()))?,
+        ),
+    };
+    let last_seq = store
+        .manifest_bytes()
+        .map(|b| {
+            parse_manifest(&b)
+                .records
+                .iter()
+                .map(|r| r.seq)
+                .max()
+                .unwrap_or(0)
+        })
+        .unwrap_or(0);
+    Ok((store, last_seq))
+}
+
+/// The link's tapped frames into the tlog's queue, until the link stops.
+async fn forward_tap(
+    mut tap: mpsc::Receiver<TapFrame>,
+    tlog: Arc<TlogQueue>,
+    mut stop: shutdown::Shutdown,
+) {
+    loop {
+        tokio::select! {
+            f = tap.recv() => match f {
+                Some(f) => tlog.push(f),
+                None => return,
+            },
+            _ = stop.reached(Stage::Done) => return,
+        }
+    }
 }
 
 /// The run's counters from the parts that kept them.

@@ -507,6 +507,12 @@ impl Estimator {
             valid_fraction: self.grid.valid as f64 / samples as f64,
             ..Estimate::without_depth(pitch_rad)
         };
+        // Beyond the range below the horizon is far ground, not sky: it joins
+        // the depth range at inverse depth 0, its far end (the percentiles of
+        // the samples with it, the far ones below the rest). Counted on every
+        // frame, also one that gives no estimate (all of it out of range).
+        let far = far_below_horizon(&self.grid, &intr.track(p.track_axis), pitch_rad) as u64;
+        est.far_below_samples = far as usize;
         if !pitch_rad.is_finite() {
             est.no_estimate = Some(NoEstimate::InvalidPitch);
             return Ok(est);
@@ -527,11 +533,6 @@ impl Estimator {
         let c_tex = p.texture_bandwidth;
         let dv = p.disparity_tolerance_px;
 
-        // Beyond the range below the horizon is far ground, not sky: it joins
-        // the depth range at inverse depth 0, its far end (the percentiles of
-        // the samples with it, the far ones below the rest).
-        let far = far_below_horizon(&self.grid, &geom, pitch_rad) as u64;
-        est.far_below_samples = far as usize;
         let n_range = (self.grid.valid - if p.sky_is_scene { 0 } else { self.grid.sky }) as u64;
         // Disparity range per metre of baseline, px/m (`None`: MMDS's `f·cos φ·Δw`).
         let mut parallax_per_m: Option<f64> = None;

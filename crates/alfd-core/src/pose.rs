@@ -226,7 +226,7 @@ impl PoseBuffer {
 /// Body rates relate to `φ` by `ω = J_r(φ)·φ'` (the right Jacobian of SO(3)),
 /// so `φ'(0) = ω_a` and `φ'(1) = J_r(θ)⁻¹·ω_b`, per unit of `u` times the
 /// interval. Rates that do not agree with the samples' own rotation (their
-/// mean more than half of `|θ|` plus a thousandth of a radian from `θ`: an
+/// mean more than half of `|θ|` from `θ`, hovering included: an
 /// autopilot that sends none, a glitch) give slerp, as do samples more than
 /// 2.5 rad apart, where no cubic over one interval is to be trusted.
 fn between(a: &AttitudeSample, b: &AttitudeSample, u: f64) -> DQuat {
@@ -251,7 +251,7 @@ fn between(a: &AttitudeSample, b: &AttitudeSample, u: f64) -> DQuat {
     let d0 = a.rates_rps * dt_s;
     let d1 = inv_jr(b.rates_rps * dt_s);
     if !(d0.is_finite() && d1.is_finite())
-        || (0.5 * (d0 + d1) - theta).length() > 0.5 * angle + 1e-3
+        || (0.5 * (d0 + d1) - theta).length() > 0.5 * angle + 1e-9
     {
         return slerp();
     }

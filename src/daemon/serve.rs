@@ -1,0 +1,128 @@
+//! The coordinator's loop: every event (a decided capture, an estimate, a link event, a
+//! written capture, a located pose, room in the writer's queue, the clock) goes to the pure
+//! [`Coordinator`], and what it decides is performed through the [`Outbox`]. Then the
+//! coordinator's steps of the shutdown, which [`super::run::run`] calls in their order.
+
+use super::coordinator::{Coordinator, EstimatorView, Located};
+use super::estimator_task::{Counters, Decided};
+use super::outbox::{now, reserve, sleep_until, tick, written, Outbox};
+use super::writer::{Space, Written};
+use crate::link::{mono_ns, LinkEvent, LinkHandle};
+use crate::notify::Notifier;
+use std::future::Future;
+use std::sync::Arc;
+use std::time::Duration;
+use tokio::sync::{mpsc, watch};
+
+/// The coordinator and every queue into it.
+pub(super) struct Loop {
+    pub co: Coordinator,
+    pub out: Outbox,
+    pub link: LinkHandle,
+    pub link_events: mpsc::Receiver<LinkEvent>,
+    pub decided: mpsc::Receiver<Decided>,
+    pub views: watch::Receiver<Option<EstimatorView>>,
+    pub written: mpsc::Receiver<Written>,
+    pub located: mpsc::Receiver<(u64, Result<Located, String>)>,
+    pub space: Arc<Space>,
+    pub counters: Arc<Counters>,
+}
+
+impl Loop {
+    /// Performs what the coordinator says it is ready to do (the camera's first messages).
+    pub async fn start(&mut self) {
+        let ready = self.co.ready();
+        self.out.perform(&mut self.co, ready).await;
+    }
+
+    /// Until `shutdown` resolves or the depth source ends; the source's error, if it failed.
+    pub async fn serve(
+        &mut self,
+        shutdown: impl Future<Output = ()>,
+        notifier: &Notifier,
+    ) -> Option<String> {
+        let pet = notifier
+            .watchdog_interval()
+            .unwrap_or(Duration::from_secs(3600));
+        let mut watchdog = tokio::time::interval(pet);
+        let mut second = tokio::time::interval(Duration::from_secs(1));
+        second.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        tokio::pin!(shutdown);
+        loop {
+            let due = self.co.next_due_ns().map(|t| {
+                tokio::time::Instant::now() + Duration::from_nanos(t.saturating_sub(mono_ns()))
+            });
+            let co = &mut self.co;
+            let (link, space, counters) = (&self.link, &self.space, &self.counters);
+            let actions = tokio::select! {
+                _ = &mut shutdown => return None,
+                d = self.decided.recv() => match d {
+                    None => return None,
+                    Some(Decided::SourceFailed(e)) => return Some(e),
+                    Some(Decided::Capture(r)) => co.on_decided(*r),
+                },
+                Ok(()) = self.views.changed() => {
+                    let v = self.views.borrow_and_update().clone();
+                    match v {
+                        Some(v) => co.on_estimate(v, now(link).await),
+                        None => Vec::new(),
+                    }
+                }
+                Some(ev) = self.link_events.recv() => co.on_link_event(ev, now(link).await),
+                Some(w) = self.written.recv() => written(co, w),
+                Some((id, l)) = self.located.recv() => co.on_located(id, l),
+                Some(permit) = reserve(self.out.writer.as_ref()), if !self.out.backlog.is_empty() => {
+                    if let Some(job) = self.out.backlog.pop_front() {
+                        permit.send(job);
+                    }
+                    Vec::new()
+                }
+                _ = second.tick() => tick(co, link, space, counters).await,
+                _ = sleep_until(due), if due.is_some() => tick(co, link, space, counters).await,
+                _ = watchdog.tick() => { let _ = notifier.watchdog(); Vec::new() }
+            };
+            self.out.perform(&mut self.co, actions).await;
+        }
+    }
+
+    /// Logs the captures the estimator decided before it stopped, for at most `within`.
+    pub async fn take_decided(&mut self, within: Duration) {
+        let deadline = tokio::time::Instant::now() + within;
+        while let Ok(Some(d)) = tokio::time::timeout_at(deadline, self.decided.recv()).await {
+            if let Decided::Capture(r) = d {
+                let a = self.co.on_decided(*r);
+                self.out.perform(&mut self.co, a).await;
+            }
+        }
+    }
+
+    /// Hands the backlog and the captures still waiting for their pose (each within
+    /// `LOCATE_WAIT`) to the writer, taking the writer's answers meanwhile (it waits on them).
+    pub async fn hand_over(&mut self) {
+        while !self.out.backlog.is_empty() || self.co.locating() > 0 {
+            let co = &mut self.co;
+            let actions = tokio::select! {
+                Some(permit) = reserve(self.out.writer.as_ref()) => {
+                    if let Some(job) = self.out.backlog.pop_front() {
+                        permit.send(job);
+                    }
+                    Vec::new()
+                }
+                Some(w) = self.written.recv() => written(co, w),
+                Some((id, l)) = self.located.recv(), if co.locating() > 0 => co.on_located(id, l),
+                else => break,
+            };
+            self.out.perform(&mut self.co, actions).await;
+        }
+    }
+
+    /// Closes the writer's queue (it then writes the tlog and the exports and ends) and says
+    /// every capture it answers for.
+    pub async fn close_writer(&mut self) {
+        self.out.writer = None;
+        while let Some(w) = self.written.recv().await {
+            let a = written(&mut self.co, w);
+            self.out.perform(&mut self.co, a).await;
+        }
+    }
+}
