@@ -44,7 +44,7 @@ pub fn estimate_json(
         } else {
             0.0
         })),
-        "far_end_unbounded": e.far_end_unbounded,
+        "far_end_unbounded": e.terms.beyond_range,
         "inv_depth_per_m": inv.map(|i| json!({
             "min": num(Some(i.min_per_m)),
             "max": num(Some(i.max_per_m)),
@@ -139,7 +139,7 @@ pub fn estimate_text(
             s,
             "no return      {:.1} % of samples below the horizon (ground beyond the range?){}",
             100.0 * e.far_below_samples as f64 / e.samples.max(1) as f64,
-            if e.far_end_unbounded {
+            if e.terms.beyond_range {
                 ": the far end is taken at infinity"
             } else {
                 ": within the percentile tail"
@@ -157,7 +157,7 @@ pub fn estimate_text(
             fmt_m(Some(1.0 / i.max_per_m)),
             if i.min_per_m > 0.0 {
                 fmt_m(Some(1.0 / i.min_per_m))
-            } else if e.far_end_unbounded {
+            } else if e.terms.beyond_range {
                 "beyond range".into()
             } else {
                 "sky".into()

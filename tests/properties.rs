@@ -376,14 +376,14 @@ proptest! {
         if pitch == 0.0 {
             prop_assert_eq!(e.far_below_samples, zeros);
         }
-        prop_assert_eq!(e.terms.beyond_range, e.far_end_unbounded);
+        prop_assert_eq!(e.terms.names().contains(&"beyond_range"), e.terms.beyond_range);
         let s = e.spacing;
         for x in [s.parallax_m, s.views_m, s.coverage_m, s.mmds_m, s.permissible_m, s.chosen_m].into_iter().flatten() {
             prop_assert!(x.is_finite() && x > 0.0, "{:?}", s);
         }
         if let Some(i) = e.inv_depth {
             prop_assert!(finite_nonneg(i.min_per_m) && i.min_per_m <= i.max_per_m);
-            if e.far_end_unbounded {
+            if e.terms.beyond_range {
                 prop_assert_eq!(i.min_per_m, 0.0);
             }
         }

@@ -229,4 +229,15 @@ impl TrackGeometry {
     pub fn across_px(&self, i: usize) -> f64 {
         i as f64 + 0.5 - self.c_across_px
     }
+    /// `cos φ − t·sin φ` (`t = v/f`): the downward component of the ray through along-track
+    /// pixel `i`, per unit along the optical axis, for a camera tilted `φ` forward from
+    /// nadir (`sin_p`, `cos_p`). Above [`HORIZON_EPS`] the ray looks below the horizon.
+    #[inline]
+    pub fn ray_down(&self, i: usize, sin_p: f64, cos_p: f64) -> f64 {
+        cos_p - self.v_px(i) / self.focal_px * sin_p
+    }
 }
+
+/// `|cos φ − t·sin φ|` below which a ray is taken as lying on the camera's horizon:
+/// neither below nor above it.
+pub const HORIZON_EPS: f64 = 1e-9;

@@ -2,7 +2,7 @@
 //! bounds of every model the frame needs, the chosen spacing and why. Only the
 //! terms the scene and the model need are computed, and the result says which.
 
-use super::depth::{DepthImage, Intrinsics};
+use super::depth::{DepthImage, Intrinsics, HORIZON_EPS};
 use super::inverse::{
     fill_grid, fill_grid_counted, percentile_ranks, InvGrid, Selector, FAR, INVALID,
 };
@@ -120,8 +120,7 @@ pub struct Terms {
     pub score: bool,
     /// Not a bound but an assumption the range rests on: more of the frame
     /// than the low percentile's tail looked below the horizon and had no
-    /// return, so the depth range's far end was taken at infinity
-    /// (`Estimate::far_end_unbounded`).
+    /// return, so the depth range's far end was taken at infinity.
     pub beyond_range: bool,
 }
 
@@ -224,11 +223,8 @@ pub struct Estimate {
     /// Samples with no return or beyond the range that look below the horizon:
     /// ground too far for the sensor (or a surface that returns nothing). They
     /// count in the depth range at the far end, as if at infinity, so that the
-    /// parallax span is never understated (`far_end_unbounded`).
+    /// parallax span is never understated (`terms.beyond_range` where they do).
     pub far_below_samples: usize,
-    /// The depth range's far end is at infinity because more of the frame
-    /// than the low percentile's tail had no return below the horizon.
-    pub far_end_unbounded: bool,
     pub valid_fraction: f64,
     pub pitch_rad: f64,
     pub inv_depth: Option<InvDepth>,
@@ -257,7 +253,6 @@ impl Estimate {
             valid_samples: 0,
             sky_samples: 0,
             far_below_samples: 0,
-            far_end_unbounded: false,
             valid_fraction: 0.0,
             pitch_rad: if pitch_rad.is_finite() {
                 pitch_rad
@@ -538,8 +533,7 @@ impl Estimator {
         let mut parallax_per_m: Option<f64> = None;
         if n_range > 0 {
             let ranks = percentile_ranks(n_range + far, p.percentile_low, p.percentile_high);
-            est.far_end_unbounded = ranks[0] < far;
-            est.terms.beyond_range = est.far_end_unbounded;
+            est.terms.beyond_range = ranks[0] < far;
             let (grid, selector) = (&self.grid, &mut self.selector);
             let selected = with_far(ranks, far, |r| grid.select2(selector, p.sky_is_scene, r));
             if let Some([lo, hi]) = selected {
@@ -820,21 +814,21 @@ fn far_below_horizon(grid: &InvGrid, geom: &super::depth::TrackGeometry, pitch_r
         return 0;
     }
     let (s, c) = pitch_rad.sin_cos();
-    // `cos φ − t·sin φ`, the ray's downward component (visibility's `g`).
-    let below: Vec<bool> = grid
-        .along_idx
-        .iter()
-        .map(|&i| c - geom.v_px(i) / geom.focal_px * s > 1e-9)
-        .collect();
-    if below.iter().all(|&b| b) {
+    let below = |i: usize| geom.ray_down(i, s, c) > HORIZON_EPS;
+    // The downward component is linear in the pixel: the ends decide whether every
+    // sample looks down (at nadir, always), and then no sample need be looked at.
+    if grid.along_idx.first().is_none_or(|&i| below(i))
+        && grid.along_idx.last().is_none_or(|&i| below(i))
+    {
         return grid.far;
     }
+    let down: Vec<bool> = grid.along_idx.iter().map(|&i| below(i)).collect();
     (0..grid.lines)
         .map(|a| {
             grid.line(a)
                 .iter()
-                .zip(&below)
-                .filter(|&(&w, &b)| b && w == FAR)
+                .zip(&down)
+                .filter(|&(&w, &d)| d && w == FAR)
                 .count()
         })
         .sum()

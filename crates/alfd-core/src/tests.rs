@@ -712,7 +712,7 @@ fn ground_beyond_the_range_below_the_horizon_is_far_not_sky() {
     let e = run(&frame(0), &intr, 0.0, &p);
     assert!(e.is_ok(), "{:?}", e.no_estimate);
     assert_eq!(e.far_below_samples, w * h / 2);
-    assert!(e.far_end_unbounded);
+    assert!(e.terms.beyond_range);
     assert!(e.terms.names().contains(&"beyond_range"));
     assert_eq!(e.inv_depth.unwrap().min_per_m, 0.0);
     let b = e
@@ -728,7 +728,7 @@ fn ground_beyond_the_range_below_the_horizon_is_far_not_sky() {
     // a span of 1/20 − 1/600, so the spacing assumed is short of it by 1/30,
     // never longer.
     let t = run(&frame(60000), &intr, 0.0, &p);
-    assert_eq!((t.far_below_samples, t.far_end_unbounded), (0, false));
+    assert_eq!((t.far_below_samples, t.terms.beyond_range), (0, false));
     let bt = t.spacing.parallax_m.unwrap();
     assert!(
         b <= bt && b >= bt * (1.0 - 1.0 / 30.0 - 1e-6),
@@ -784,7 +784,7 @@ fn no_return_above_the_horizon_is_sky() {
     let ez = run(&z16(w, h, z, 0.01), &intr, pitch, &p);
     let em = run(&metres(w, h, m), &intr, pitch, &p);
     assert!(ez.is_ok() && em.is_ok());
-    assert_eq!((ez.far_below_samples, ez.far_end_unbounded), (0, false));
+    assert_eq!((ez.far_below_samples, ez.terms.beyond_range), (0, false));
     assert!(!ez.terms.names().contains(&"beyond_range"));
     let (a, b) = (
         ez.spacing.parallax_m.unwrap(),
@@ -809,7 +809,7 @@ fn no_return_within_the_percentile_tail_leaves_the_range_alone() {
     holes[555] = 0;
     let a = run(&z16(w, h, clean, 0.01), &intr, 0.0, &p);
     let b = run(&z16(w, h, holes, 0.01), &intr, 0.0, &p);
-    assert_eq!((b.far_below_samples, b.far_end_unbounded), (2, false));
+    assert_eq!((b.far_below_samples, b.terms.beyond_range), (2, false));
     assert_eq!(a.inv_depth, b.inv_depth);
     assert_eq!(a.spacing.parallax_m, b.spacing.parallax_m);
     assert!(b.spacing.parallax_m.is_some());

@@ -3,15 +3,11 @@
 //! line), and from the intervals the unseen fraction against spacing and the
 //! views per point. Invariant: every interval holds 0 (the current camera).
 
-use super::depth::{DepthImage, Intrinsics, TrackAxis, TrackGeometry};
+use super::depth::{DepthImage, Intrinsics, TrackAxis, TrackGeometry, HORIZON_EPS};
 use super::inverse::{fill_grid, DepthRange, InvGrid, SKY};
 
 /// Interior phases of the in-between view when none is configured.
 pub const DEFAULT_PHASES: usize = 15;
-
-/// `|cos φ − t·sin φ|` below which a sample's ray is taken as lying on the
-/// camera's horizon: neither below nor above the flight line, left out.
-const HORIZON_EPS: f64 = 1e-9;
 
 /// The targets and the knobs of the term.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -148,8 +144,10 @@ impl TrackRays {
         let (sa0, ca0) = (pitch_rad + t_min.atan()).sin_cos();
         let (sa1, ca1) = (pitch_rad + t_max.atan()).sin_cos();
         for (j, &i) in along_idx.iter().enumerate() {
+            // On the horizon (`|g|` at most `HORIZON_EPS`): neither below nor
+            // above the flight line, left out.
             let t = geom.v_px(i) / f;
-            let g = cp - t * sp;
+            let g = geom.ray_down(i, sp, cp);
             let xr = sp + t * cp;
             rays.side[j] = if g > HORIZON_EPS {
                 Side::Below
