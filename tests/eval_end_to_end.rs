@@ -146,6 +146,16 @@ fn eval_writes_report_json_and_plots() {
             oracle <= fixed,
             "the oracle needs at most fixed's {fixed}: {oracle}"
         );
+        // Each method's plan at its data-volume scale meets every target by the truth,
+        // every in-between view judged; the interval bound beside it.
+        for m in g["methods"].as_array().unwrap() {
+            assert_eq!(m["meets"], true, "{m}");
+            assert!(m["scale"].as_f64().unwrap() > 0.0, "{m}");
+            assert!(
+                m["interval_bound"]["captures"].as_u64().unwrap() >= 2,
+                "{m}"
+            );
+        }
     }
     // The quality model at its own spacing, the others scaled to its count (issue 13).
     let qe = v["tiny"]["quality_at_equal_captures"].as_array().unwrap();

@@ -1,6 +1,6 @@
 //! Captures chosen by the daemon's trigger, and the equal-capture scaling.
 
-use alfd::eval::plan::{captures, scale_to_count};
+use alfd::eval::plan::{captures, largest_passing_scale, scale_to_count, SCALE_PRECISION};
 
 #[test]
 fn constant_spacing_captures_every_k_views_and_the_last() {
@@ -47,4 +47,37 @@ fn unreachable_counts_give_the_closest() {
     let s = vec![Some(1.0); 11];
     let (_, caps) = scale_to_count(&s, 0.1, 5.0, 50);
     assert_eq!(caps.len(), 11);
+}
+
+#[test]
+fn the_largest_passing_scale_is_found_from_either_side() {
+    for threshold in [0.013, 0.7, 1.0, 3.9, 250.0] {
+        let mut calls = 0;
+        for start in [1e-3, 0.5, 1.0, 40.0] {
+            let s = largest_passing_scale(start, |c| {
+                calls += 1;
+                c <= threshold
+            })
+            .expect("a scale passes");
+            assert!(s <= threshold, "{s} above {threshold} (start {start})");
+            assert!(
+                s * SCALE_PRECISION > threshold,
+                "{s} more than the precision under {threshold} (start {start})"
+            );
+        }
+        assert!(calls < 4 * 40, "{calls} calls for four searches");
+    }
+}
+
+#[test]
+fn the_largest_passing_scale_never_returns_a_failing_scale() {
+    // Not monotone: a window of failure inside the passing range, as a plan's
+    // phase can make. The answer passes, whatever the search lands on.
+    let ok = |c: f64| c <= 2.0 && !(0.9..1.1).contains(&c);
+    for start in [0.05, 0.95, 1.0, 1.5, 3.0] {
+        let s = largest_passing_scale(start, ok).expect("a scale passes");
+        assert!(ok(s), "{s} fails (start {start})");
+    }
+    assert_eq!(largest_passing_scale(1.0, |_| false), None);
+    assert_eq!(largest_passing_scale(1.0, |_| true), Some(1e4));
 }

@@ -709,9 +709,15 @@ mod tests {
     #[test]
     fn parser_refuses_garbage_without_panicking() {
         let app1 = exif_app1(&zurich(), 64, 48).unwrap();
+        let full = parse_exif_gps(&app1).unwrap();
+        // A cut segment is refused, or (cut after everything read) read whole: never a
+        // different answer.
         for n in 0..app1.len() {
-            let _ = parse_exif_gps(&app1[..n]);
+            if let Ok(p) = parse_exif_gps(&app1[..n]) {
+                assert_eq!(p, full, "prefix of {n} bytes");
+            }
         }
+        assert!(parse_exif_gps(&app1[..app1.len() / 2]).is_err());
         assert!(parse_exif_gps(b"Exif\0\0MM\0\x2A\0\0\0\x08\0\0").is_err());
         assert!(parse_exif_gps(b"JFIF").is_err());
     }

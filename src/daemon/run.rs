@@ -285,6 +285,8 @@ pub async fn run(
     };
 
     // The coordinator, last: it takes from all of the above.
+    // Located poses: one per capture waiting for its pose, of which the coordinator keeps
+    // at most LOCATING_MAX, so a send never finds it full.
     let (located_tx, located_rx) = mpsc::channel(LOCATING_MAX);
     let mut lp = Loop {
         co: Coordinator::new(&config, last_seq, saves_frames.then_some(intrinsics)),
@@ -305,7 +307,19 @@ pub async fn run(
     };
     lp.start().await;
     let _ = options.notifier.ready();
-    let source_error = lp.serve(shutdown, &options.notifier).await;
+    // The caller's shutdown (SIGTERM) is heard in one place: it moves the stage, the one
+    // cancellation every loop and thread follows. The coordinator's loop returns on it.
+    let source_error = {
+        let cancel = async {
+            shutdown.await;
+            stage.advance(Stage::Stopping);
+            std::future::pending::<std::convert::Infallible>().await
+        };
+        tokio::select! {
+            e = lp.serve(stop.clone(), &options.notifier) => e,
+            never = cancel => match never {},
+        }
+    };
 
     // The shutdown, in order: stop taking work (sources, estimator, interval captures);
     // log the captures already decided; close the writer's queue so it flushes the tlog and

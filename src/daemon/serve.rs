@@ -6,10 +6,10 @@
 use super::coordinator::{Coordinator, EstimatorView, Located};
 use super::estimator_task::{Counters, Decided};
 use super::outbox::{now, reserve, sleep_until, tick, written, Outbox};
+use super::shutdown::{Shutdown, Stage};
 use super::writer::{Space, Written};
 use crate::link::{mono_ns, LinkEvent, LinkHandle};
 use crate::notify::Notifier;
-use std::future::Future;
 use std::sync::Arc;
 use std::time::Duration;
 use tokio::sync::{mpsc, watch};
@@ -35,19 +35,15 @@ impl Loop {
         self.out.perform(&mut self.co, ready).await;
     }
 
-    /// Until `shutdown` resolves or the depth source ends; the source's error, if it failed.
-    pub async fn serve(
-        &mut self,
-        shutdown: impl Future<Output = ()>,
-        notifier: &Notifier,
-    ) -> Option<String> {
+    /// Until the run's one cancellation (the stage reaching `Stopping`) or the depth source
+    /// ends; the source's error, if it failed.
+    pub async fn serve(&mut self, mut stop: Shutdown, notifier: &Notifier) -> Option<String> {
         let pet = notifier
             .watchdog_interval()
             .unwrap_or(Duration::from_secs(3600));
         let mut watchdog = tokio::time::interval(pet);
         let mut second = tokio::time::interval(Duration::from_secs(1));
         second.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-        tokio::pin!(shutdown);
         loop {
             let due = self.co.next_due_ns().map(|t| {
                 tokio::time::Instant::now() + Duration::from_nanos(t.saturating_sub(mono_ns()))
@@ -55,7 +51,7 @@ impl Loop {
             let co = &mut self.co;
             let (link, space, counters) = (&self.link, &self.space, &self.counters);
             let actions = tokio::select! {
-                _ = &mut shutdown => return None,
+                _ = stop.reached(Stage::Stopping) => return None,
                 d = self.decided.recv() => match d {
                     None => return None,
                     Some(Decided::SourceFailed(e)) => return Some(e),

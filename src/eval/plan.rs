@@ -75,3 +75,50 @@ pub fn scale_to_count(
     }
     best
 }
+
+/// Relative precision of [`largest_passing_scale`]: the bracket's ends are
+/// at most this ratio apart when it stops (0.3 %, finer than one capture in
+/// a few hundred).
+pub const SCALE_PRECISION: f64 = 1.003;
+
+/// The largest scale `s` (within `[1e-4, 1e4]`) for which `ok(s)` holds,
+/// searched from `start`: downwards by halving until one passes, upwards by
+/// doubling until one fails, then bisection on `log(s)` to
+/// [`SCALE_PRECISION`]. `ok` need not be monotone (a plan's phase can make a
+/// longer spacing pass where a shorter one failed): the answer is a scale
+/// that passes with the next one tried above it failing, never one that
+/// fails. `None` when nothing down to `1e-4` passes.
+pub fn largest_passing_scale(start: f64, mut ok: impl FnMut(f64) -> bool) -> Option<f64> {
+    const LO: f64 = 1e-4;
+    const HI: f64 = 1e4;
+    let mut lo = start.clamp(LO, HI);
+    while !ok(lo) {
+        if lo <= LO {
+            return None;
+        }
+        lo = (lo / 2.0).max(LO);
+    }
+    let mut hi = lo;
+    loop {
+        if hi >= HI {
+            return Some(HI);
+        }
+        let up = (hi * 2.0).min(HI);
+        if ok(up) {
+            lo = up;
+            hi = up;
+        } else {
+            hi = up;
+            break;
+        }
+    }
+    while hi / lo > SCALE_PRECISION {
+        let mid = (lo * hi).sqrt();
+        if ok(mid) {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    Some(lo)
+}

@@ -114,13 +114,13 @@ pub fn markdown(
     );
     let _ = writeln!(
         s,
-        "| scene | resolution | dense views | view step (m) | time (s) | of which rendering (s) |"
+        "| scene | resolution | dense views | view step (m) | time (s) | of which rendering / sweeps / method runs / data volume / quality at equal captures (s) |"
     );
     let _ = writeln!(s, "|---|---|---:|---:|---:|---:|");
     for r in results {
         let _ = writeln!(
             s,
-            "| {} | {}×{} ×{}² supersampled | {} | {:.3} | {:.1} | {:.1} |",
+            "| {} | {}×{} ×{}² supersampled | {} | {:.3} | {:.1} | {:.1} / {:.1} / {:.1} / {:.1} / {:.1} |",
             r.name,
             r.res.width,
             r.res.height,
@@ -128,7 +128,11 @@ pub fn markdown(
             r.views,
             r.res.view_step_m,
             r.elapsed_s,
-            r.render_s
+            r.render_s,
+            r.stage_s[0],
+            r.stage_s[1],
+            r.stage_s[2],
+            r.stage_s[3]
         );
     }
     let _ = writeln!(

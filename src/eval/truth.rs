@@ -193,8 +193,10 @@ impl<'a> Truth<'a> {
     #[inline]
     fn seen_in_map(&self, cap: &View, col: f64, row: f64, depth_m: f64) -> Seen {
         let (w, h) = (self.g.width, self.g.height);
-        let c0 = (col.floor().max(0.0) as usize).min(w - 1);
-        let r0 = (row.floor().max(0.0) as usize).min(h - 1);
+        // `as usize` truncates and saturates below zero (and NaN) to 0: the
+        // same index as `floor().max(0.0)`, without a libm call per pixel.
+        let c0 = (col as usize).min(w - 1);
+        let r0 = (row as usize).min(h - 1);
         let c1 = (c0 + 1).min(w - 1);
         let r1 = (r0 + 1).min(h - 1);
         let tol = tolerance_m(depth_m);
@@ -232,6 +234,7 @@ impl<'a> Truth<'a> {
         let mut counts = [0usize; 5];
         let mut disparities = Vec::with_capacity(w * h);
         let mut exact_tests = 0;
+        let sc = self.g.pitch_rad.sin_cos();
         for r in 0..h {
             for i in 0..w {
                 let k = r * w + i;
@@ -245,7 +248,7 @@ impl<'a> Truth<'a> {
                 let mut seen = 0;
                 let mut at = [(0.0, 0.0); 2];
                 for (n, cap) in [a, b].into_iter().enumerate() {
-                    let Some((col, row, depth)) = self.g.reproject(x, y, d, view.x_m - cap.x_m)
+                    let Some((col, row, depth)) = self.g.reproject(sc, x, y, d, view.x_m - cap.x_m)
                     else {
                         continue;
                     };

@@ -98,6 +98,7 @@ pub struct LinkHealth {
     pub rates_acked: bool,
     pub sent: u64,
     pub refused: u64,
+    /// Events dropped because the coordinator's queue was full (newest dropped).
     pub events_dropped: u64,
 }
 

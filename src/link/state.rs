@@ -192,6 +192,8 @@ impl Tracker {
 
     /// A TIMESYNC request to send now (`now_ns` doubles as its ts1).
     pub fn timesync_request(&mut self, now_ns: u64) -> MavMessage {
+        // Requests the autopilot never answered are forgotten oldest first: an answer
+        // older than sixteen requests would be too stale to fit the offset with.
         if self.outstanding.len() >= 16 {
             self.outstanding.pop_front();
         }

@@ -79,7 +79,11 @@ pub struct Link {
 pub fn new(cfg: LinkConfig) -> (Link, LinkHandle, mpsc::Receiver<LinkEvent>) {
     let (state_tx, state) = watch::channel(None);
     let (health_tx, health) = watch::channel(LinkHealth::default());
+    // Commands from the rest of the daemon: when full, a sender waits (each is a request
+    // that expects its answer; the coordinator never has more than a few in flight).
     let (cmd_tx, commands) = mpsc::channel(64);
+    // Events for the coordinator: when full, the newest is dropped and counted
+    // (`LinkHealth::events_dropped`); the link never waits on its consumer.
     let (events, events_rx) = mpsc::channel(256);
     let link = Link {
         tracker: Tracker::new(cfg.clone()),
@@ -251,6 +255,8 @@ impl Link {
         conn: Conn,
         shutdown: &mut std::pin::Pin<&mut F>,
     ) -> bool {
+        // Decoded frames from the connection's reader: when full, the reader waits, and the
+        // transport's own buffer (the serial driver's, the socket's) absorbs the burst.
         let (rx_tx, mut rx) = mpsc::channel(256);
         let reader = tokio::spawn(read_loop(
             conn.clone(),

@@ -797,7 +797,9 @@ mod tests {
         assert_eq!(s.ideal_captures, None);
         assert_eq!(s.data_ratio, None);
         assert!(s.targets().iter().skip(1).all(|t| !t.1));
-        let _ = s.render_text();
+        let text = s.render_text();
+        assert!(text.starts_with("captures"), "{text}");
+        assert!(!text.contains("NaN") && !text.contains("inf"), "{text}");
         // Captures without truth: intervals cannot be judged.
         let s = summarize(&[], &every(10, 30), 1.0, 0.0);
         assert_eq!((s.violations, s.unjudged_intervals), (0, 3));
