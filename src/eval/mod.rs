@@ -807,7 +807,7 @@ struct IntervalTruth<'t, 's> {
     truth: &'t Truth<'s>,
     views: &'t [View],
     every_view: bool,
-    worst: HashMap<(usize, usize), (f64, Option<f64>)>,
+    geos: HashMap<(usize, usize), Vec<Geo>>,
 }
 
 impl<'t, 's> IntervalTruth<'t, 's> {
@@ -816,49 +816,64 @@ impl<'t, 's> IntervalTruth<'t, 's> {
             truth,
             views,
             every_view,
-            worst: HashMap::new(),
+            geos: HashMap::new(),
         }
+    }
+
+    fn within(geos: &[Geo], t: &Targets) -> bool {
+        geos.iter().all(|g| {
+            g.unseen_fraction <= t.unseen_fraction_max
+                && g.parallax_px.is_none_or(|p| p <= t.parallax_px)
+        })
+    }
+
+    /// Classifies the views of the intervals not yet known, in parallel; with
+    /// `t`, stops at the first interval that fails its targets (a failing plan
+    /// is the common case above the answer), keeping what was classified.
+    /// Whether none of them failed.
+    fn classify_missing(&mut self, pairs: &[(usize, usize)], t: Option<&Targets>) -> bool {
+        let missing: Vec<(usize, usize)> = pairs
+            .iter()
+            .filter(|p| !self.geos.contains_key(p))
+            .copied()
+            .collect();
+        let (truth, views, every) = (self.truth, self.views, self.every_view);
+        let computed = std::sync::Mutex::new(Vec::new());
+        let fails = missing.par_iter().any(|&(i, j)| {
+            let geos: Vec<Geo> = (i + 1..j)
+                .filter(|&k| every || geo_view_picked(i, j, k))
+                .map(|k| Geo::of(&truth.classify(&views[k], &views[i], &views[j], false)))
+                .collect();
+            let fail = t.is_some_and(|t| !Self::within(&geos, t));
+            computed.lock().expect("not poisoned").push(((i, j), geos));
+            fail
+        });
+        self.geos
+            .extend(computed.into_inner().expect("not poisoned"));
+        !fails
     }
 
     /// Whether every interval of `caps` meets the parallax and unseen targets.
     fn meets(&mut self, caps: &[usize], t: &Targets) -> bool {
-        let within = |w: &(f64, Option<f64>)| {
-            w.0 <= t.unseen_fraction_max && w.1.is_none_or(|p| p <= t.parallax_px)
-        };
         let pairs: Vec<(usize, usize)> = caps.windows(2).map(|w| (w[0], w[1])).collect();
         // A known failing interval decides without classifying anything new.
         if pairs
             .iter()
-            .any(|p| self.worst.get(p).is_some_and(|w| !within(w)))
+            .any(|p| self.geos.get(p).is_some_and(|g| !Self::within(g, t)))
         {
             return false;
         }
-        let missing: Vec<(usize, usize)> = pairs
+        self.classify_missing(&pairs, Some(t))
+    }
+
+    /// The geometry of every classified view of a plan, in order.
+    fn plan_geo(&mut self, caps: &[usize]) -> Vec<Geo> {
+        let pairs: Vec<(usize, usize)> = caps.windows(2).map(|w| (w[0], w[1])).collect();
+        self.classify_missing(&pairs, None);
+        pairs
             .iter()
-            .filter(|p| !self.worst.contains_key(p))
-            .copied()
-            .collect();
-        let (truth, views, every) = (self.truth, self.views, self.every_view);
-        // Stops at the first interval that fails (a failing plan is the common case
-        // above the answer); what was classified until then is kept.
-        let computed = std::sync::Mutex::new(Vec::new());
-        let fails = missing.par_iter().any(|&(i, j)| {
-            let mut unseen = 0.0f64;
-            let mut parallax: Option<f64> = None;
-            for k in (i + 1..j).filter(|&k| every || geo_view_picked(i, j, k)) {
-                let c = truth.classify(&views[k], &views[i], &views[j], false);
-                unseen = unseen.max(c.unseen_fraction());
-                if let Some(p) = c.parallax_span_px {
-                    parallax = Some(parallax.map_or(p, |q: f64| q.max(p)));
-                }
-            }
-            let w = (unseen, parallax);
-            computed.lock().expect("not poisoned").push(((i, j), w));
-            !within(&w)
-        });
-        self.worst
-            .extend(computed.into_inner().expect("not poisoned"));
-        !fails
+            .flat_map(|p| self.geos[p].iter().copied())
+            .collect()
     }
 }
 
@@ -877,18 +892,6 @@ fn plan_within(
             !overlaps || t.is_none_or(|t| len <= t * (1.0 + 1e-9))
         })
     })
-}
-
-/// The truth's geometry of every in-between view of a plan (no reconstruction).
-fn plan_geo(truth: &Truth, views: &[View], caps: &[usize]) -> Vec<Geo> {
-    let tasks: Vec<(usize, usize, usize)> = caps
-        .windows(2)
-        .flat_map(|w| (w[0] + 1..w[1]).map(move |k| (w[0], w[1], k)))
-        .collect();
-    tasks
-        .par_iter()
-        .map(|&(i, j, k)| Geo::of(&truth.classify(&views[k], &views[i], &views[j], false)))
-        .collect()
 }
 
 /// Fewest captures of `caps_m` inside any sampled point's visibility
@@ -1297,7 +1300,7 @@ pub fn evaluate_scene(
         });
     }
     let mut stage_s = [0.0; 4];
-    let mut lap = start.elapsed().as_secs_f64();
+    let mut lap = render_s;
     let mut stage = |k: usize| {
         let now = start.elapsed().as_secs_f64();
         stage_s[k] = now - lap;
@@ -1440,7 +1443,7 @@ pub fn evaluate_scene(
                     scale = 1.0;
                 }
                 let caps = plan(scale);
-                let geos = plan_geo(&truth, &views, &caps);
+                let geos = judge_all.plan_geo(&caps);
                 let geo = GeoStats::of(geos.iter());
                 let caps_m: Vec<f64> = caps.iter().map(|&c| xs[c]).collect();
                 let mv = min_views(&all_intervals, &caps_m, line, k);
