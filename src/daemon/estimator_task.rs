@@ -5,13 +5,14 @@
 //! queue the estimator waits on (a decided capture is never dropped).
 
 use super::coordinator::EstimatorView;
-use super::run::{unix_us_at, FrameSample, SampleHook};
+use super::run::{FrameSample, SampleHook};
 use super::shutdown::Shutdown;
 use super::step::{FrameInput, Pipeline, StepOutcome, StepParams};
 use crate::capture::{CaptureMode, CaptureRecord};
 use crate::config::Config;
 use crate::core::geo::LocalFrame;
 use crate::core::{DepthData, DepthImage, Intrinsics};
+use crate::link::unix_us_at;
 use crate::link::{mono_ns, LinkHandle};
 use crate::source::{DepthSource, SourceError, Stamped};
 use std::sync::atomic::{AtomicU64, Ordering};

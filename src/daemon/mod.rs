@@ -4,6 +4,7 @@
 //! between them; the tasks at the edges own the devices; `run` wires them.
 
 pub mod camera;
+pub(crate) mod colour;
 pub mod coordinator;
 pub mod devices;
 pub mod estimator_task;

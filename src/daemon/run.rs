@@ -5,6 +5,7 @@
 //! ([`super::shutdown`]), its order written once at the end of [`run`]. Every queue is
 //! bounded; each says its policy where it is made.
 
+use super::colour::{ring_frames, spawn_thread, stream_thread};
 use super::coordinator::{Coordinator, EstimatorView, LOCATING_MAX};
 use super::estimator_task::{
     depth_thread, estimator_thread, Counters, EstimatorCtx, EstimatorReport, Ticks, DECIDED_QUEUE,
@@ -21,13 +22,13 @@ use crate::config::Config;
 use crate::core::Intrinsics;
 use crate::link::{self, mono_ns, LinkHandle, LinkHealth, TapFrame};
 use crate::notify::Notifier;
-use crate::source::{DepthSource, FrameAt, FrameRing, FrameSource, SourceError, Stamped};
+use crate::source::{DepthSource, FrameAt, FrameSource};
 use std::collections::VecDeque;
 use std::future::Future;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
-use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use std::time::Duration;
 use tokio::sync::{mpsc, watch};
 
 /// CAMERA_IMAGE_CAPTURED follows its capture's instant within this (issue 14).
@@ -145,29 +146,6 @@ pub enum RunError {
     Link(#[from] link::LinkError),
     #[error("config: {0}")]
     Config(String),
-}
-
-/// Unix time (µs) of a monotonic instant. The offset between the two clocks
-/// is taken once (the tightest of a few paired readings): read afresh for
-/// every message, a thread paused between the two reads stamped telemetry
-/// out of order.
-pub(crate) fn unix_us_at(mono: u64) -> Option<u64> {
-    static OFFSET_US: std::sync::OnceLock<Option<i128>> = std::sync::OnceLock::new();
-    let offset = (*OFFSET_US.get_or_init(|| {
-        (0..5)
-            .filter_map(|_| {
-                let before = mono_ns();
-                let unix = SystemTime::now().duration_since(UNIX_EPOCH).ok()?;
-                let after = mono_ns();
-                Some((
-                    after - before,
-                    unix.as_micros() as i128 - (before / 1000) as i128,
-                ))
-            })
-            .min_by_key(|(spread, _)| *spread)
-            .map(|(_, off)| off)
-    }))?;
-    u64::try_from((mono / 1000) as i128 + offset).ok()
 }
 
 /// The first free `flight-NNN` under `root`.
@@ -451,85 +429,5 @@ fn report(
         captures_failed: c.captures_failed,
         latency: c.latency.summary(),
         ..RunReport::default()
-    }
-}
-
-fn spawn_thread<T: Send + 'static>(
-    name: &str,
-    f: impl FnOnce() -> T + Send + 'static,
-) -> std::thread::JoinHandle<T> {
-    std::thread::Builder::new()
-        .name(name.into())
-        .spawn(f)
-        .expect("a thread starts")
-}
-
-/// Frames a streaming camera's ring keeps: every frame of the last image budget (a
-/// capture's image may be made up to then), and two more for the tolerance either side.
-/// Eight frames (267 ms at 30 fps, 133 ms at 60) were fewer than a capture waiting for its
-/// pose (up to one telemetry period) and the writer's queue can take.
-fn ring_frames(fps: f64) -> usize {
-    (fps * super::outbox::IMAGE_BUDGET_NS as f64 * 1e-9).ceil() as usize + 2
-}
-
-/// A streaming camera's thread, feeding a ring of its last frames.
-fn stream_thread(
-    mut s: Box<dyn FrameSource>,
-    frames: usize,
-    tolerance_ns: u64,
-    stop: shutdown::Shutdown,
-) -> (WaitingRing, std::thread::JoinHandle<()>) {
-    let ring = FrameRing::new(frames, tolerance_ns);
-    let feed = ring.clone();
-    let h = spawn_thread("alfd-camera", move || {
-        while !stop.is_stopping() {
-            match s.next_frame() {
-                Ok(Some(f)) => feed.push(f),
-                Ok(None) => return,
-                Err(SourceError::Fatal(e)) => {
-                    tracing::error!("camera: {e}");
-                    return;
-                }
-                Err(e) => tracing::warn!("camera: {e}"),
-            }
-        }
-    });
-    (WaitingRing(ring), h)
-}
-
-/// A ring that waits briefly for the frame of an instant it has not seen yet
-/// (the colour frame of a depth instant may arrive a little later).
-struct WaitingRing(FrameRing);
-
-impl FrameAt for WaitingRing {
-    fn frame_at(&mut self, mono: u64) -> Option<Stamped<crate::source::ColorImage>> {
-        for _ in 0..20 {
-            if let Some(f) = self.0.frame_at(mono) {
-                return Some(f);
-            }
-            std::thread::sleep(Duration::from_millis(10));
-        }
-        None
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::ring_frames;
-    use crate::daemon::outbox::IMAGE_BUDGET_NS;
-
-    /// The ring still holds the frame of a capture's instant when the writer starts its
-    /// image, however late within the budget, at any frame rate.
-    #[test]
-    fn the_colour_ring_spans_the_image_budget_at_any_frame_rate() {
-        for fps in [1.0, 6.0, 15.0, 30.0, 60.0, 90.0] {
-            let n = ring_frames(fps);
-            let span_ns = (n - 1) as f64 / fps * 1e9;
-            assert!(
-                span_ns >= IMAGE_BUDGET_NS as f64,
-                "{n} frames at {fps} fps span {span_ns} ns"
-            );
-        }
-        assert_eq!(ring_frames(30.0), 14);
     }
 }

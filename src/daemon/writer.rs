@@ -5,11 +5,12 @@
 //! never delays a capture and a slow store never blocks the link.
 
 use super::latency::CaptureStamps;
-use super::run::{unix_us_at, BoxedStore};
+use super::run::BoxedStore;
 use crate::capture::{
     encode_capture, log_capture, parse_manifest, write_exports, CaptureRecord, ExifGps,
     ExportSummary, ImageFormat, TlogWriter,
 };
+use crate::link::unix_us_at;
 use crate::link::{mono_ns, TapFrame};
 use crate::source::FrameAt;
 use std::collections::VecDeque;

@@ -8,7 +8,7 @@ pub mod config;
 mod state;
 mod task;
 
-pub use clock::mono_ns;
+pub use clock::{mono_ns, unix_us_at};
 pub use config::{LinkConfig, LinkConfigError, RawLinkConfig};
 pub use state::{Airborne, AnchorSource, PoseQueryError, Reaction, Tracker};
 pub use task::{new, Link, LinkError, TapFrame};

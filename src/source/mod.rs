@@ -99,12 +99,19 @@ pub trait FrameAt: Send {
 }
 
 /// The last few frames of a streaming camera, fed by its thread; `frame_at`
-/// picks the nearest one within `tolerance_ns`.
+/// picks the nearest one within `tolerance_ns`. Full: the oldest frame goes.
 #[derive(Clone)]
 pub struct FrameRing {
-    inner: std::sync::Arc<std::sync::Mutex<std::collections::VecDeque<Stamped<RawColor>>>>,
+    inner: std::sync::Arc<RingInner>,
     capacity: usize,
     tolerance_ns: u64,
+}
+
+#[derive(Default)]
+struct RingInner {
+    frames: std::sync::Mutex<std::collections::VecDeque<Stamped<RawColor>>>,
+    /// Told of every new frame, for a reader waiting on an instant not yet seen.
+    pushed: std::sync::Condvar,
 }
 
 impl FrameRing {
@@ -117,30 +124,73 @@ impl FrameRing {
     }
 
     pub fn push(&self, f: Stamped<RawColor>) {
-        let mut q = self.inner.lock().unwrap_or_else(|p| p.into_inner());
+        let mut q = self.inner.frames.lock().unwrap_or_else(|p| p.into_inner());
         while q.len() >= self.capacity {
             q.pop_front();
         }
         q.push_back(f);
+        drop(q);
+        self.inner.pushed.notify_all();
     }
-}
 
-impl FrameAt for FrameRing {
-    fn frame_at(&mut self, mono_ns: u64) -> Option<Stamped<ColorImage>> {
-        let raw = {
-            let q = self.inner.lock().unwrap_or_else(|p| p.into_inner());
-            q.iter()
-                .min_by_key(|f| f.mono_ns.abs_diff(mono_ns))
-                .filter(|f| f.mono_ns.abs_diff(mono_ns) <= self.tolerance_ns)
-                .cloned()?
+    /// The frame nearest `mono_ns` within the tolerance, waiting up to `wait` for one
+    /// to arrive (the colour frame of a depth instant may come a little later); woken by
+    /// each new frame, not polling.
+    pub fn frame_at_within(
+        &self,
+        mono_ns: u64,
+        wait: std::time::Duration,
+    ) -> Option<Stamped<ColorImage>> {
+        let deadline = std::time::Instant::now() + wait;
+        let mut q = self.inner.frames.lock().unwrap_or_else(|p| p.into_inner());
+        let raw = loop {
+            if let Some(f) = self.nearest(&q, mono_ns) {
+                break f;
+            }
+            let left = deadline.saturating_duration_since(std::time::Instant::now());
+            if left.is_zero() {
+                return None;
+            }
+            q = self
+                .inner
+                .pushed
+                .wait_timeout(q, left)
+                .unwrap_or_else(|p| p.into_inner())
+                .0;
         };
-        // Decoded outside the lock, only for the frame that is captured.
+        drop(q);
+        Self::decoded(raw)
+    }
+
+    fn nearest(
+        &self,
+        q: &std::collections::VecDeque<Stamped<RawColor>>,
+        mono_ns: u64,
+    ) -> Option<Stamped<RawColor>> {
+        q.iter()
+            .min_by_key(|f| f.mono_ns.abs_diff(mono_ns))
+            .filter(|f| f.mono_ns.abs_diff(mono_ns) <= self.tolerance_ns)
+            .cloned()
+    }
+
+    /// Decoded outside the lock, only for the frame that is captured.
+    fn decoded(raw: Stamped<RawColor>) -> Option<Stamped<ColorImage>> {
         let data = raw.data.decode().ok()?;
         Some(Stamped {
             mono_ns: raw.mono_ns,
             seq: raw.seq,
             data,
         })
+    }
+}
+
+impl FrameAt for FrameRing {
+    fn frame_at(&mut self, mono_ns: u64) -> Option<Stamped<ColorImage>> {
+        let raw = {
+            let q = self.inner.frames.lock().unwrap_or_else(|p| p.into_inner());
+            self.nearest(&q, mono_ns)?
+        };
+        Self::decoded(raw)
     }
 }
 
