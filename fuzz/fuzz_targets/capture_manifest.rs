@@ -20,8 +20,14 @@ fuzz_target!(|data: &[u8]| {
         // A record that was read can be written back and read again.
         CaptureRecord::from_json_line(&r.to_json_line()).expect("a read record round-trips");
     }
-    let _ = geo_txt(&m.records);
-    let _ = transforms(&m.records);
+    // Every record is a line of geo.txt or a stated skip; the same for transforms.json.
+    let (geo, skipped) = geo_txt(&m.records);
+    assert_eq!(geo.lines().count() - 1 + skipped.len(), m.records.len());
+    let (nerf, skipped) = transforms(&m.records);
+    assert_eq!(
+        nerf.map_or(0, |t| t.frames.len()) + skipped.len(),
+        m.records.len()
+    );
 
     let (entries, err) = tlog::parse(data);
     let used: usize = entries.iter().map(|e| 8 + e.frame.len()).sum();
@@ -34,8 +40,18 @@ fuzz_target!(|data: &[u8]| {
     }
     assert!(tlog::complete_prefix_len(data) <= data.len());
 
-    if let Some(app1) = find_exif_app1(data) {
-        let _ = parse_exif_gps(app1);
+    // A position read back is a position: on the globe, finite height.
+    for g in [
+        find_exif_app1(data).map(parse_exif_gps),
+        Some(parse_exif_gps(data)),
+    ]
+    .into_iter()
+    .flatten()
+    .flatten()
+    {
+        assert!(
+            g.lat_deg.abs() <= 90.0 && g.lon_deg.abs() <= 180.0 && g.alt_m.is_finite(),
+            "{g:?}"
+        );
     }
-    let _ = parse_exif_gps(data);
 });
