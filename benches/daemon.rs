@@ -7,7 +7,9 @@
 //! Then the stages one frame costs, timed in this process, to explain the sum.
 //!
 //! Run: `cargo bench --bench daemon` (`ALFD_BENCH_SECONDS`, default 30, is the
-//! measured window of each run; 600 for the soak). Writes `target/bench-daemon.json`.
+//! measured window of each run; 600 for the soak; `ALFD_BENCH_SIZE=848x480` and
+//! `ALFD_BENCH_DECIMATION=N` for another frame size and stride). Writes
+//! `target/bench-daemon.json`.
 
 use alfd::capture::{encode_capture, read_manifest, ImageFormat};
 use alfd::config::Config;
@@ -25,8 +27,31 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-const W: usize = 640;
-const H: usize = 480;
+/// Frame size of both streams: `ALFD_BENCH_SIZE=WIDTHxHEIGHT`, default 640x480 (848x480
+/// is the D4xx's native depth mode).
+fn size() -> (usize, usize) {
+    let Ok(v) = std::env::var("ALFD_BENCH_SIZE") else {
+        return (640, 480);
+    };
+    v.split_once('x')
+        .and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)))
+        .filter(|&(w, h): &(usize, usize)| w >= 16 && h >= 16)
+        .unwrap_or_else(|| panic!("ALFD_BENCH_SIZE={v}: want WIDTHxHEIGHT, e.g. 848x480"))
+}
+
+/// `[estimator] decimation` of both daemons: `ALFD_BENCH_DECIMATION=N` (default: the
+/// config's default, full resolution).
+fn decimation_line() -> String {
+    std::env::var("ALFD_BENCH_DECIMATION")
+        .ok()
+        .map(|n| {
+            let n: u64 = n
+                .parse()
+                .unwrap_or_else(|_| panic!("ALFD_BENCH_DECIMATION={n}: want a stride"));
+            format!("\n[estimator]\ndecimation = {n}\n")
+        })
+        .unwrap_or_default()
+}
 const FRAMES: usize = 90;
 const STEP_M: f64 = 0.333;
 const PERIOD_NS: u64 = 33_333_333;
@@ -52,11 +77,12 @@ fn env_u64(name: &str, default: u64) -> u64 {
 /// Returns the length flown (m).
 fn render_recording(scene: &Scene, dir: &Path) -> f64 {
     let s = &scene.survey;
-    let intr = Intrinsics::from_hfov_deg(W, H, s.hfov_deg, None).expect("a valid field of view");
+    let (w, h) = size();
+    let intr = Intrinsics::from_hfov_deg(w, h, s.hfov_deg, None).expect("a valid field of view");
     let (cx_px, cy_px) = intr.principal_px();
     let meta = RecordingMeta {
-        width: W,
-        height: H,
+        width: w,
+        height: h,
         focal_px: intr.focal_px(),
         cx_px,
         cy_px,
@@ -80,8 +106,8 @@ fn render_recording(scene: &Scene, dir: &Path) -> f64 {
         };
         let frame = render(scene, &camera, &RenderOptions { supersample: 1 });
         let color = ColorImage {
-            width: W,
-            height: H,
+            width: w,
+            height: h,
             rgb: frame.rgb8(),
         };
         let t = 1_000_000_000 + i as u64 * PERIOD_NS;
@@ -93,6 +119,8 @@ fn render_recording(scene: &Scene, dir: &Path) -> f64 {
 
 fn config_text(address: &str, recording: &Path, captures: &Path, model: &str) -> String {
     let hz = telemetry_hz();
+    let (w, h) = size();
+    let decimation = decimation_line();
     format!(
         r#"[mavlink]
 address = "{address}"
@@ -106,23 +134,23 @@ attitude_hz = {hz}
 source = "recorded"
 dir = {recording:?}
 replay = "live"
-width = {W}
-height = {H}
+width = {w}
+height = {h}
 fps = 30.0
 
 [depth]
 source = "recorded"
 dir = {recording:?}
 replay = "live"
-width = {W}
-height = {H}
+width = {w}
+height = {h}
 fps = 30.0
 hfov_deg = 69.0
 scale_m = {SCALE_M}
 
 [sampling]
 model = "{model}"
-
+{decimation}
 [trigger]
 rate_max_hz = 30.0
 fallback_spacing_m = 1.0
@@ -373,6 +401,7 @@ fn median(mut v: Vec<f64>) -> f64 {
 /// estimate with the daemon's parameters, one capture's JPEG encoding, and
 /// what a V4L2 colour frame would cost instead of the PNG.
 fn stage_costs(recording: &Path, config_text: &str) -> serde_json::Value {
+    let (w, h) = size();
     let config = Config::from_text(config_text, "bench").expect("valid");
     let mut rec = Recording::open(recording).expect("the recording opens");
     let intr = rec.intrinsics();
@@ -402,8 +431,8 @@ fn stage_costs(recording: &Path, config_text: &str) -> serde_json::Value {
             let t = Instant::now();
             let _ = std::hint::black_box(encode_capture(
                 &f.rgb,
-                W as u32,
-                H as u32,
+                w as u32,
+                h as u32,
                 ImageFormat::Jpeg { quality: 90 },
                 None,
             ));
@@ -424,20 +453,20 @@ fn stage_costs(recording: &Path, config_text: &str) -> serde_json::Value {
         .rgb;
     let (mjpeg, _) = encode_capture(
         &rgb,
-        W as u32,
-        H as u32,
+        w as u32,
+        h as u32,
         ImageFormat::Jpeg { quality: 90 },
         None,
     )
     .expect("a JPEG");
-    let yuyv = vec![128u8; W * H * 2];
+    let yuyv = vec![128u8; w * h * 2];
     let (mut mjpeg_ms, mut yuyv_ms) = (Vec::new(), Vec::new());
     for _ in 0..20 {
         let t = Instant::now();
         std::hint::black_box(mjpeg_to_rgb(&mjpeg).expect("our JPEG decodes"));
         mjpeg_ms.push(t.elapsed().as_secs_f64() * 1e3);
         let t = Instant::now();
-        std::hint::black_box(yuyv_to_rgb(W, H, &yuyv).expect("a YUYV frame converts"));
+        std::hint::black_box(yuyv_to_rgb(w, h, &yuyv).expect("a YUYV frame converts"));
         yuyv_ms.push(t.elapsed().as_secs_f64() * 1e3);
     }
     json!({
@@ -489,7 +518,9 @@ fn main() {
     let t = Instant::now();
     let length_m = render_recording(&scene, &recording);
     println!(
-        "daemon: rendered {FRAMES} frames {W}x{H} (depth + colour) in {:.1} s",
+        "daemon: rendered {FRAMES} frames {}x{} (depth + colour) in {:.1} s",
+        size().0,
+        size().1,
         t.elapsed().as_secs_f64()
     );
     let rt = tokio::runtime::Builder::new_multi_thread()
@@ -644,8 +675,8 @@ fn main() {
     println!("daemon: the stages predict (% of one core): {predicted}");
 
     let out = json!({
-        "width": W,
-        "height": H,
+        "width": size().0,
+        "height": size().1,
         "fps": 30,
         "recording_frames": FRAMES,
         "warm_up_s": WARM_UP.as_secs(),
