@@ -9,21 +9,21 @@
 
 use alfd::core::Estimator;
 use alfd::eval::recon::{Geometry, View};
-use alfd::eval::truth::{Truth, BOTH};
+use alfd::eval::truth::{Truth, BOTH, PARALLAX_PERCENTILES};
 use alfd::eval::{eval_sensor, quality_params};
 use alfd::render::{render, survey_camera, RenderOptions};
 use alfd::scene::Scene;
 use anyhow::Context;
 use std::path::PathBuf;
 
-/// The truth's robust span: 0.5 and 99.5 percentiles.
+/// The ends of the truth's robust span ([`PARALLAX_PERCENTILES`], the same ranks).
 fn span(mut v: Vec<f64>) -> Option<(f64, f64)> {
     if v.is_empty() {
         return None;
     }
     v.sort_by(f64::total_cmp);
-    let at = |p: f64| v[((p * (v.len() - 1) as f64).round() as usize).min(v.len() - 1)];
-    Some((at(0.005), at(0.995)))
+    let at = |p: f64| v[(p * (v.len() - 1) as f64).round() as usize];
+    Some((at(PARALLAX_PERCENTILES.0), at(PARALLAX_PERCENTILES.1)))
 }
 
 fn show(s: Option<(f64, f64)>) -> String {

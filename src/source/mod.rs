@@ -186,11 +186,7 @@ impl FrameRing {
 
 impl FrameAt for FrameRing {
     fn frame_at(&mut self, mono_ns: u64) -> Option<Stamped<ColorImage>> {
-        let raw = {
-            let q = self.inner.frames.lock().unwrap_or_else(|p| p.into_inner());
-            self.nearest(&q, mono_ns)?
-        };
-        Self::decoded(raw)
+        self.frame_at_within(mono_ns, std::time::Duration::ZERO)
     }
 }
 
