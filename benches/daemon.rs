@@ -8,7 +8,8 @@
 //!
 //! Run: `cargo bench --bench daemon` (`ALFD_BENCH_SECONDS`, default 30, is the
 //! measured window of each run; 600 for the soak; `ALFD_BENCH_SIZE=848x480` and
-//! `ALFD_BENCH_DECIMATION=N` for another frame size and stride). Writes
+//! `ALFD_BENCH_DECIMATION=N` for another frame size and stride; `ALFD_BENCH_COLOUR=mjpeg`
+//! for an MJPEG camera's frames and `ALFD_BENCH_KEEP_JPEG=0` to re-encode them). Writes
 //! `target/bench-daemon.json`.
 
 use alfd::capture::{encode_capture, read_manifest, ImageFormat};
@@ -52,6 +53,23 @@ fn decimation_line() -> String {
         })
         .unwrap_or_default()
 }
+/// How the recording holds its colour frames: `ALFD_BENCH_COLOUR=png` (default: decoded
+/// on every replayed frame, a bench cost) or `mjpeg` (an MJPEG camera's buffers, without
+/// Huffman tables as many UVC cameras send them; kept raw until captured).
+fn colour_is_mjpeg() -> bool {
+    match std::env::var("ALFD_BENCH_COLOUR").as_deref() {
+        Err(_) | Ok("png") => false,
+        Ok("mjpeg") => true,
+        Ok(v) => panic!("ALFD_BENCH_COLOUR={v}: want png or mjpeg"),
+    }
+}
+
+/// `[capture] keep_camera_jpeg` of both daemons: `ALFD_BENCH_KEEP_JPEG=0` re-encodes an
+/// MJPEG camera's frames (default 1, the config's default: stored as they came).
+fn keep_camera_jpeg() -> bool {
+    env_u64("ALFD_BENCH_KEEP_JPEG", 1) != 0
+}
+
 const FRAMES: usize = 90;
 const STEP_M: f64 = 0.333;
 const PERIOD_NS: u64 = 33_333_333;
@@ -111,8 +129,22 @@ fn render_recording(scene: &Scene, dir: &Path) -> f64 {
             rgb: frame.rgb8(),
         };
         let t = 1_000_000_000 + i as u64 * PERIOD_NS;
-        rec.push(i as u64 + 1, t, Some(&frame.z16(&sensor)), Some(&color))
-            .expect("a frame is recorded");
+        let depth = frame.z16(&sensor);
+        if colour_is_mjpeg() {
+            let (jpeg, _) = encode_capture(
+                &color.rgb,
+                w as u32,
+                h as u32,
+                ImageFormat::Jpeg { quality: 90 },
+                None,
+            )
+            .expect("a JPEG");
+            let uvc = alfd::capture::jpeg::without_huffman_tables(&jpeg);
+            rec.push_mjpeg(i as u64 + 1, t, Some(&depth), &uvc)
+        } else {
+            rec.push(i as u64 + 1, t, Some(&depth), Some(&color))
+        }
+        .expect("a frame is recorded");
     }
     length_m
 }
@@ -160,7 +192,9 @@ dir = {captures:?}
 mode = "frame"
 image_format = "jpeg"
 jpeg_quality = 90
-"#
+keep_camera_jpeg = {keep}
+"#,
+        keep = keep_camera_jpeg(),
     )
 }
 
@@ -418,14 +452,23 @@ fn stage_costs(recording: &Path, config_text: &str) -> serde_json::Value {
         est_ms.push(t.elapsed().as_secs_f64() * 1e3);
     }
     let (mut color_ms, mut jpeg_ms) = (Vec::new(), Vec::new());
+    let (mut read_ms, mut keep_ms) = (Vec::new(), Vec::new());
     let mut rec = Recording::open(recording).expect("the recording opens");
     loop {
         let t = Instant::now();
         let Some(f) = rec.next_frame().expect("a colour frame") else {
             break;
         };
+        read_ms.push(t.elapsed().as_secs_f64() * 1e3);
+        if let alfd::source::RawColor::Mjpeg(b) = &f.data {
+            // What keeping a captured frame as it came costs instead of the two below.
+            let t = Instant::now();
+            std::hint::black_box(alfd::capture::jpeg::as_received(b, |_, _| None).expect("whole"));
+            keep_ms.push(t.elapsed().as_secs_f64() * 1e3);
+        }
         // What a capture costs to decode (the daemon decodes captured frames only).
-        let f = f.data.decode().expect("the recorded PNG decodes");
+        let t = Instant::now();
+        let f = f.data.decode().expect("the recorded frame decodes");
         color_ms.push(t.elapsed().as_secs_f64() * 1e3);
         if jpeg_ms.len() < 10 {
             let t = Instant::now();
@@ -474,8 +517,11 @@ fn stage_costs(recording: &Path, config_text: &str) -> serde_json::Value {
         "v4l2_yuyv_convert_ms": median(yuyv_ms),
         "depth_read_decode_ms": median(depth_ms),
         "estimate_ms": median(est_ms),
-        "color_read_decode_png_ms": median(color_ms),
+        "colour_format": if colour_is_mjpeg() { "mjpeg" } else { "png" },
+        "color_read_ms": median(read_ms),
+        "color_decode_ms": median(color_ms),
         "jpeg_encode_ms": median(jpeg_ms),
+        "mjpeg_keep_as_received_ms": (!keep_ms.is_empty()).then(|| median(keep_ms)),
     })
 }
 
@@ -661,20 +707,30 @@ fn main() {
         },
     );
     println!("daemon: stages in this process (median ms): {stages}");
-    // What the stages predict, as % of one core: per second, 30 depth and 30
-    // colour frames read and decoded, 30 estimates, one JPEG per capture.
+    // What the stages predict, as % of one core: per second, 30 depth frames read and
+    // decoded, 30 colour frames read, 30 estimates, one image per capture.
     let ms = |k: &str| stages[k].as_f64().unwrap_or(f64::NAN);
     let per_s =
         |r: &RunFigures| r.captures_in_window as f64 / r.cpu_per_second_pct.len().max(1) as f64;
+    // One captured image: kept as it came, or decoded and encoded.
+    let image_ms = if colour_is_mjpeg() && keep_camera_jpeg() {
+        ms("mjpeg_keep_as_received_ms")
+    } else {
+        ms("color_decode_ms") + ms("jpeg_encode_ms")
+    };
     let predicted = json!({
-        "replay_decode_pct": 3.0 * (ms("depth_read_decode_ms") + ms("color_read_decode_png_ms")),
+        // The colour frames are read and kept raw; only a captured one is decoded.
+        "replay_pct": 3.0 * (ms("depth_read_decode_ms") + ms("color_read_ms")),
         "estimator_pct": 3.0 * ms("estimate_ms"),
-        "jpeg_fixed_pct": per_s(base) * ms("jpeg_encode_ms") / 10.0,
-        "jpeg_estimating_pct": per_s(occ) * ms("jpeg_encode_ms") / 10.0,
+        "capture_image_ms": image_ms,
+        "capture_images_fixed_pct": per_s(base) * image_ms / 10.0,
+        "capture_images_estimating_pct": per_s(occ) * image_ms / 10.0,
     });
     println!("daemon: the stages predict (% of one core): {predicted}");
 
     let out = json!({
+        "colour": if colour_is_mjpeg() { "mjpeg" } else { "png" },
+        "keep_camera_jpeg": keep_camera_jpeg(),
         "width": size().0,
         "height": size().1,
         "fps": 30,

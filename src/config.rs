@@ -120,6 +120,8 @@ pub struct RawCapture {
     /// "jpeg" or "png".
     pub image_format: Option<String>,
     pub jpeg_quality: Option<i64>,
+    /// Store an MJPEG camera's frames as the camera encoded them (default true).
+    pub keep_camera_jpeg: Option<bool>,
     /// For mode "camera_command": "image_start_capture" or "digicam_control".
     pub command: Option<String>,
 }
@@ -518,6 +520,10 @@ pub struct CaptureConfig {
     pub dir: PathBuf,
     pub mode: CaptureMode,
     pub image_format: ImageFormat,
+    /// An MJPEG camera's frames are stored as it encoded them, with the EXIF segment
+    /// added (no decoding, no second compression; `jpeg_quality` then applies only to
+    /// other cameras' frames). False: decoded and re-encoded at `jpeg_quality`.
+    pub keep_camera_jpeg: bool,
     pub command: CameraCommand,
 }
 
@@ -527,6 +533,7 @@ impl Default for CaptureConfig {
             dir: PathBuf::from("captures"),
             mode: CaptureMode::Frame,
             image_format: ImageFormat::Jpeg { quality: 90 },
+            keep_camera_jpeg: true,
             command: CameraCommand::ImageStartCapture,
         }
     }
@@ -764,6 +771,12 @@ impl RawConfig {
                 ))
             }
         };
+        if c.keep_camera_jpeg == Some(true) && image_format == ImageFormat::Png {
+            return Err((
+                "capture.keep_camera_jpeg".into(),
+                "the camera's JPEG cannot be kept when image_format is \"png\"".into(),
+            ));
+        }
         let command = match &c.command {
             Some(w) => word(
                 "capture.command",
@@ -802,6 +815,7 @@ impl RawConfig {
                 dir: resolve(base, c.dir.as_deref().unwrap_or(Path::new("captures"))),
                 mode,
                 image_format,
+                keep_camera_jpeg: c.keep_camera_jpeg.unwrap_or(true),
                 command,
             },
             trigger,

@@ -688,24 +688,6 @@ fn small_jpeg(w: u32, h: u32) -> Vec<u8> {
     alfd::capture::encode_jpeg(&rgb, w, h, 80, None).expect("encodes")
 }
 
-/// The JPEG as many UVC cameras send it: without its Huffman tables (DHT segments).
-fn strip_huffman(jpeg: &[u8]) -> Vec<u8> {
-    let mut out = jpeg[..2].to_vec();
-    let mut i = 2;
-    while i + 4 <= jpeg.len() && jpeg[i] == 0xFF {
-        let len = u16::from_be_bytes([jpeg[i + 2], jpeg[i + 3]]) as usize;
-        if jpeg[i + 1] == 0xDA {
-            break;
-        }
-        if jpeg[i + 1] != 0xC4 {
-            out.extend_from_slice(&jpeg[i..i + 2 + len]);
-        }
-        i += 2 + len;
-    }
-    out.extend_from_slice(&jpeg[i..]);
-    out
-}
-
 /// Whether any SOF marker segment in `jpeg` claims more than `pixels`.
 fn jpeg_claims_over(jpeg: &[u8], pixels: u64) -> bool {
     jpeg.windows(9).any(|w| {
@@ -779,7 +761,7 @@ proptest! {
         };
         let c = match which {
             0 => mjpeg(apply(&jpeg, &edits)),
-            1 => mjpeg(apply(&strip_huffman(&jpeg), &edits)),
+            1 => mjpeg(apply(&alfd::capture::jpeg::without_huffman_tables(&jpeg), &edits)),
             _ => {
                 let rgb: Vec<u8> = (0..12 * 8 * 3).map(|i| (i * 7) as u8).collect();
                 let png = alfd::capture::encode_png(&rgb, 12, 8).unwrap();
@@ -788,6 +770,42 @@ proptest! {
         };
         if let Some(c) = c {
             prop_assert_eq!(c.rgb.len(), c.width * c.height * 3);
+        }
+    }
+
+    /// An edited MJPEG frame kept as the camera encoded it (`capture.keep_camera_jpeg`)
+    /// is refused, or stored with the EXIF segment; when the frame decodes, the stored
+    /// one decodes to the same pixels: keeping a frame never changes it. (A frame that
+    /// does not decode may once kept: `mjpeg_to_rgb` refuses a header claiming more
+    /// pixels than the frame's bytes could carry, and the kept frame has the EXIF and
+    /// table bytes added.)
+    #[test]
+    fn camera_jpeg_kept_as_received_decodes_as_the_frame(tables in any::<bool>(), edits in edits(6)) {
+        let jpeg = small_jpeg(24, 16);
+        let frame = apply(&if tables { jpeg } else { alfd::capture::jpeg::without_huffman_tables(&jpeg) }, &edits);
+        // As in `camera_frames_with_edits`.
+        prop_assume!(!jpeg_claims_over(&frame, 16 << 20));
+        let gps = alfd::capture::ExifGps {
+            lat_deg: 47.4,
+            lon_deg: 8.5,
+            alt_m: 500.0,
+            time_unix_us: None,
+            make: "alfd".into(),
+            model: "uvc".into(),
+        };
+        let kept = alfd::capture::jpeg::as_received(&frame, |w, h| alfd::capture::exif_app1(&gps, w, h).ok());
+        if let Ok(k) = kept {
+            prop_assert!(alfd::capture::find_exif_app1(&k.bytes).is_some());
+            if let Ok(want) = mjpeg_to_rgb(&frame) {
+                let got = mjpeg_to_rgb(&k.bytes);
+                prop_assert!(
+                    got.as_ref() == Ok(&want),
+                    "{}x{} kept as {:?}",
+                    want.width,
+                    want.height,
+                    got.map(|c| (c.width, c.height))
+                );
+            }
         }
     }
 
@@ -1223,7 +1241,11 @@ fn write_fuzz_seeds() {
     put(
         "camera_frames",
         "mjpeg-uvc",
-        &[&[6u8][..], &strip_huffman(&jpeg)].concat(),
+        &[
+            &[6u8][..],
+            &alfd::capture::jpeg::without_huffman_tables(&jpeg),
+        ]
+        .concat(),
     );
     let rgb: Vec<u8> = (0..12 * 8 * 3).map(|i| (i * 7) as u8).collect();
     let png = alfd::capture::encode_png(&rgb, 12, 8).unwrap();

@@ -5,6 +5,7 @@
 
 pub mod exif;
 pub mod export;
+pub mod jpeg;
 pub mod record;
 pub mod store;
 pub mod tlog;

@@ -53,9 +53,11 @@ pub fn run(a: Args) -> Result<ExitCode> {
 
 fn print_report(r: &RunReport) {
     tracing::info!(
-        "stopped: {} captures in {}, {} depth frames ({} skipped while busy, {} bad), {} errors",
+        "stopped: {} captures in {} ({} without an image, {} images as the camera encoded them), {} depth frames ({} skipped while busy, {} bad), {} errors",
         r.records.len(),
         r.flight_dir.display(),
+        r.frames_missing,
+        r.images_as_received,
         r.depth_frames,
         r.frames_skipped_busy,
         r.frames_bad,

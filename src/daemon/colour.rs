@@ -3,7 +3,7 @@
 //! briefly for the frame of an instant the camera has not delivered yet.
 
 use super::shutdown::Shutdown;
-use crate::source::{ColorImage, FrameAt, FrameRing, FrameSource, SourceError, Stamped};
+use crate::source::{ColorImage, FrameAt, FrameRing, FrameSource, RawColor, SourceError, Stamped};
 use std::time::Duration;
 
 /// How long the writer waits for the frame of a capture's instant to arrive.
@@ -61,13 +61,15 @@ impl FrameAt for WaitingRing {
     fn frame_at(&mut self, mono: u64) -> Option<Stamped<ColorImage>> {
         self.0.frame_at_within(mono, FRAME_WAIT)
     }
+    fn raw_at(&mut self, mono: u64) -> Option<Stamped<RawColor>> {
+        self.0.raw_at_within(mono, FRAME_WAIT)
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::daemon::outbox::IMAGE_BUDGET_NS;
-    use crate::source::RawColor;
 
     /// The ring still holds the frame of a capture's instant when the writer starts its
     /// image, however late within the budget, at any frame rate.

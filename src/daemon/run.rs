@@ -108,6 +108,8 @@ pub struct RunReport {
     pub capture_errors: Vec<String>,
     /// Captures whose colour frame could not be had (logged without an image).
     pub frames_missing: u64,
+    /// Images stored as an MJPEG camera encoded them (`capture.keep_camera_jpeg`).
+    pub images_as_received: u64,
     pub camera_commands: u64,
     pub camera_command_failures: u64,
     pub trigger_distances_sent: u64,
@@ -209,6 +211,7 @@ pub async fn run(
         let ctx = WriterCtx {
             store,
             format: config.capture.image_format,
+            keep_camera_jpeg: config.capture.keep_camera_jpeg,
             frames: frame_at,
             space: space.clone(),
             make_model: (
@@ -407,6 +410,7 @@ fn report(
         capture_errors: w.errors,
         capture_errors_dropped: w.errors_dropped,
         frames_missing: w.frames_missing,
+        images_as_received: w.images_as_received,
         tlog_frames: w.tlog_frames,
         exports: w.exports,
         samples: est.samples,

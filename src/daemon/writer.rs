@@ -7,12 +7,12 @@
 use super::latency::CaptureStamps;
 use super::run::BoxedStore;
 use crate::capture::{
-    encode_capture, log_capture, parse_manifest, write_exports, CaptureRecord, ExifGps,
-    ExportSummary, ImageFormat, TlogWriter,
+    encode_capture, exif_app1, jpeg, log_capture, parse_manifest, write_exports, CaptureRecord,
+    ExifGps, ExportSummary, ImageFormat, TlogWriter,
 };
 use crate::link::unix_us_at;
 use crate::link::{mono_ns, TapFrame};
-use crate::source::FrameAt;
+use crate::source::{FrameAt, RawColor, Stamped};
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
@@ -92,6 +92,8 @@ pub struct WriterReport {
     pub errors: Vec<String>,
     pub errors_dropped: u64,
     pub frames_missing: u64,
+    /// Images stored as the camera encoded them (MJPEG), not decoded and re-encoded.
+    pub images_as_received: u64,
     pub tlog_frames: u64,
     pub exports: Option<ExportSummary>,
 }
@@ -109,6 +111,8 @@ impl WriterReport {
 pub struct WriterCtx {
     pub store: BoxedStore,
     pub format: ImageFormat,
+    /// `[capture] keep_camera_jpeg`: store an MJPEG camera's frames as they came.
+    pub keep_camera_jpeg: bool,
     pub frames: Option<Box<dyn FrameAt>>,
     pub space: Arc<Space>,
     pub make_model: (String, String),
@@ -177,23 +181,18 @@ pub fn writer_thread(
             let missing = if !pace.admit(started, deadline_ns) {
                 Some("writer behind: no time to make the image before its deadline".to_string())
             } else {
-                match ctx.frames.as_mut().and_then(|f| f.frame_at(record.mono_ns)) {
+                match ctx.frames.as_mut().and_then(|f| f.raw_at(record.mono_ns)) {
                     None => Some("no colour frame at the capture's instant".to_string()),
                     Some(fr) => {
                         let gps =
                             ExifGps::from_record(&record, &ctx.make_model.0, &ctx.make_model.1);
-                        match encode_capture(
-                            &fr.data.rgb,
-                            fr.data.width as u32,
-                            fr.data.height as u32,
-                            ctx.format,
-                            Some(&gps),
-                        ) {
-                            Ok((bytes, _)) => {
+                        match image_of(&fr, ctx.format, ctx.keep_camera_jpeg, &gps) {
+                            Ok((bytes, as_received)) => {
                                 image = Some(bytes);
+                                report.images_as_received += u64::from(as_received);
                                 None
                             }
-                            Err(e) => Some(format!("encoding: {e}")),
+                            Err(e) => Some(e),
                         }
                     }
                 }
@@ -291,6 +290,41 @@ const TYPICAL_OF: usize = 5;
 const STALL_HALF_LIFE_NS: u64 = 1_000_000_000;
 const TYPICAL_HOLD_NS: u64 = 1_000_000_000;
 const TYPICAL_HALF_LIFE_NS: u64 = 4_000_000_000;
+
+/// The stored image of a captured frame, and whether it is the camera's own JPEG. An
+/// MJPEG frame is kept as it came (with the EXIF segment) when the format is JPEG and
+/// `keep_camera_jpeg`; one whose structure does not hold up is decoded and re-encoded
+/// instead, so it is either whole or refused with the decoder's reason.
+fn image_of(
+    frame: &Stamped<RawColor>,
+    format: ImageFormat,
+    keep_camera_jpeg: bool,
+    gps: &ExifGps,
+) -> Result<(Vec<u8>, bool), String> {
+    let mut kept_reason = None;
+    if let (RawColor::Mjpeg(jpeg), ImageFormat::Jpeg { .. }, true) =
+        (&frame.data, format, keep_camera_jpeg)
+    {
+        // An invalid position leaves the image untagged rather than lost.
+        match jpeg::as_received(jpeg, |w, h| exif_app1(gps, w, h).ok()) {
+            Ok(f) => return Ok((f.bytes, true)),
+            Err(e) => kept_reason = Some(e),
+        }
+    }
+    let rgb = frame.data.decode().map_err(|e| match &kept_reason {
+        Some(k) => format!("colour frame {}: {k}; decoding: {e}", frame.seq),
+        None => format!("colour frame {} does not decode: {e}", frame.seq),
+    })?;
+    encode_capture(
+        &rgb.rgb,
+        rgb.width as u32,
+        rgb.height as u32,
+        format,
+        Some(gps),
+    )
+    .map(|(bytes, _)| (bytes, false))
+    .map_err(|e| format!("encoding: {e}"))
+}
 
 fn halved(ns: u64, elapsed_ns: u64, half_life_ns: u64) -> u64 {
     (ns as f64 * (-(elapsed_ns as f64) / half_life_ns as f64).exp2()) as u64
@@ -448,5 +482,106 @@ mod tests {
         }
         assert_eq!(late, 0, "{late} of {made} images made past their deadline");
         assert!((80..=150).contains(&made), "{made} of 300 made");
+    }
+}
+
+#[cfg(test)]
+mod image_tests {
+    use super::*;
+    use crate::source::decode::mjpeg_to_rgb;
+    use crate::source::ColorImage;
+
+    fn gps() -> ExifGps {
+        ExifGps {
+            lat_deg: 47.4,
+            lon_deg: 8.5,
+            alt_m: 500.0,
+            time_unix_us: None,
+            make: "alfd".into(),
+            model: "uvc".into(),
+        }
+    }
+
+    fn rgb(w: usize, h: usize) -> ColorImage {
+        ColorImage {
+            width: w,
+            height: h,
+            rgb: (0..w * h * 3).map(|i| (i * 13 % 251) as u8).collect(),
+        }
+    }
+
+    fn stamped(data: RawColor) -> Stamped<RawColor> {
+        Stamped {
+            mono_ns: 1,
+            seq: 7,
+            data,
+        }
+    }
+
+    const JPEG: ImageFormat = ImageFormat::Jpeg { quality: 90 };
+
+    /// An MJPEG frame is stored with its scan untouched, unless re-encoding is asked for or
+    /// the format is PNG; other frames are encoded; every JPEG carries the EXIF segment.
+    #[test]
+    fn an_mjpeg_frame_is_kept_as_the_camera_encoded_it() {
+        let c = rgb(40, 24);
+        let (camera, _) = encode_capture(&c.rgb, 40, 24, ImageFormat::Jpeg { quality: 50 }, None)
+            .expect("encodes");
+        let frame = stamped(RawColor::Mjpeg(camera.clone()));
+        let (kept, as_received) = image_of(&frame, JPEG, true, &gps()).unwrap();
+        assert!(as_received);
+        let sos = camera.windows(2).position(|w| w == [0xFF, 0xDA]).unwrap();
+        assert!(
+            kept.ends_with(&camera[sos..]),
+            "the camera's scan, byte for byte"
+        );
+        assert_eq!(mjpeg_to_rgb(&kept), mjpeg_to_rgb(&camera));
+        assert!(crate::capture::find_exif_app1(&kept).is_some());
+
+        // Re-encoded at quality 90: other bytes, same size, still tagged.
+        let (again, as_received) = image_of(&frame, JPEG, false, &gps()).unwrap();
+        assert!(!as_received);
+        assert!(!again.ends_with(&camera[sos..]));
+        let d = mjpeg_to_rgb(&again).unwrap();
+        assert_eq!((d.width, d.height), (40, 24));
+        assert!(crate::capture::find_exif_app1(&again).is_some());
+
+        let (png, as_received) = image_of(&frame, ImageFormat::Png, true, &gps()).unwrap();
+        assert!(!as_received);
+        assert_eq!(&png[1..4], b"PNG");
+
+        let (from_rgb, as_received) =
+            image_of(&stamped(RawColor::Rgb(c)), JPEG, true, &gps()).unwrap();
+        assert!(!as_received);
+        assert_eq!(mjpeg_to_rgb(&from_rgb).unwrap().width, 40);
+    }
+
+    /// A frame cut short in its scan is not stored as if whole: re-encoded from what the
+    /// decoder makes of it, or refused with both reasons and the frame's number.
+    #[test]
+    fn a_broken_mjpeg_frame_is_re_encoded_or_refused_with_its_reason() {
+        let c = rgb(40, 24);
+        let (camera, _) = encode_capture(&c.rgb, 40, 24, JPEG, None).unwrap();
+        let cut = stamped(RawColor::Mjpeg(camera[..camera.len() - 40].to_vec()));
+        match image_of(&cut, JPEG, true, &gps()) {
+            Ok((bytes, as_received)) => {
+                assert!(!as_received);
+                assert!(jpeg::as_received(&bytes, |_, _| None).is_ok(), "whole now");
+            }
+            Err(e) => assert!(
+                e.contains("colour frame 7")
+                    && e.contains("end-of-image")
+                    && e.contains("decoding"),
+                "{e}"
+            ),
+        }
+        let garbage = stamped(RawColor::Mjpeg(vec![0xFF, 0xD8, 1, 2, 3]));
+        let e = image_of(&garbage, JPEG, true, &gps()).unwrap_err();
+        assert!(
+            e.starts_with("colour frame 7: byte 2: expected a marker; decoding:"),
+            "{e}"
+        );
+        let e = image_of(&garbage, JPEG, false, &gps()).unwrap_err();
+        assert!(e.starts_with("colour frame 7 does not decode:"), "{e}");
     }
 }

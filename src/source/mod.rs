@@ -96,6 +96,16 @@ pub trait DepthSource: Send {
 /// trigger path, by the capture writer.
 pub trait FrameAt: Send {
     fn frame_at(&mut self, mono_ns: u64) -> Option<Stamped<ColorImage>>;
+
+    /// The frame as the camera delivered it, not decoded: the writer stores an MJPEG
+    /// frame as it came (`capture::jpeg`) and decodes the others itself.
+    fn raw_at(&mut self, mono_ns: u64) -> Option<Stamped<RawColor>> {
+        self.frame_at(mono_ns).map(|f| Stamped {
+            mono_ns: f.mono_ns,
+            seq: f.seq,
+            data: RawColor::Rgb(f.data),
+        })
+    }
 }
 
 /// The last few frames of a streaming camera, fed by its thread; `frame_at`
@@ -141,11 +151,20 @@ impl FrameRing {
         mono_ns: u64,
         wait: std::time::Duration,
     ) -> Option<Stamped<ColorImage>> {
+        self.raw_at_within(mono_ns, wait).and_then(Self::decoded)
+    }
+
+    /// As [`FrameRing::frame_at_within`], the frame as delivered.
+    pub fn raw_at_within(
+        &self,
+        mono_ns: u64,
+        wait: std::time::Duration,
+    ) -> Option<Stamped<RawColor>> {
         let deadline = std::time::Instant::now() + wait;
         let mut q = self.inner.frames.lock().unwrap_or_else(|p| p.into_inner());
-        let raw = loop {
+        loop {
             if let Some(f) = self.nearest(&q, mono_ns) {
-                break f;
+                return Some(f);
             }
             let left = deadline.saturating_duration_since(std::time::Instant::now());
             if left.is_zero() {
@@ -157,9 +176,7 @@ impl FrameRing {
                 .wait_timeout(q, left)
                 .unwrap_or_else(|p| p.into_inner())
                 .0;
-        };
-        drop(q);
-        Self::decoded(raw)
+        }
     }
 
     fn nearest(
@@ -187,6 +204,9 @@ impl FrameRing {
 impl FrameAt for FrameRing {
     fn frame_at(&mut self, mono_ns: u64) -> Option<Stamped<ColorImage>> {
         self.frame_at_within(mono_ns, std::time::Duration::ZERO)
+    }
+    fn raw_at(&mut self, mono_ns: u64) -> Option<Stamped<RawColor>> {
+        self.raw_at_within(mono_ns, std::time::Duration::ZERO)
     }
 }
 

@@ -4,8 +4,9 @@
 //!
 //! Layout: `meta.json` (`width`, `height`, `focal_px`, `cx_px`, `cy_px`,
 //! `depth_scale_m`) and `frames.jsonl`, one object per frame: `seq`, `mono_ns`,
-//! `depth` (a raw Z16 file name or null) and `color` (an RGB PNG file name or
-//! null). File names are relative to the directory and may not leave it.
+//! `depth` (a raw Z16 file name or null) and `color` (an RGB PNG file name, a
+//! `.jpg`/`.jpeg` MJPEG camera buffer as it came, or null). File names are relative
+//! to the directory and may not leave it.
 //!
 //! Two replays: [`Recording`] gives the frames once with their recorded times;
 //! [`LiveReplay`] paces them in real time, re-stamped and looping, as a stand-in
@@ -157,10 +158,20 @@ impl Recording {
         })
     }
 
-    /// The PNG as stored: decoded only if it is captured.
+    /// The file as stored (a `.jpg` is an MJPEG camera's frame, anything else a PNG):
+    /// decoded only if it is captured.
     fn read_color(&self, seq: u64, path: &Path) -> Result<RawColor, SourceError> {
+        let jpeg = path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("jpg") || e.eq_ignore_ascii_case("jpeg"));
         fs::read(path)
-            .map(RawColor::Png)
+            .map(|b| {
+                if jpeg {
+                    RawColor::Mjpeg(b)
+                } else {
+                    RawColor::Png(b)
+                }
+            })
             .map_err(|e| SourceError::BadFrame {
                 seq,
                 reason: format!("{}: {e}", path.display()),
@@ -381,6 +392,53 @@ impl Recorder {
         depth: Option<&DepthImage>,
         color: Option<&ColorImage>,
     ) -> std::io::Result<()> {
+        let mut entry = self.depth_entry(seq, mono_ns, depth)?;
+        if let Some(c) = color {
+            let name = format!("color_{seq:06}.png");
+            let file = fs::File::create(self.dir.join(&name))?;
+            let mut enc = png::Encoder::new(
+                std::io::BufWriter::new(file),
+                c.width as u32,
+                c.height as u32,
+            );
+            enc.set_color(png::ColorType::Rgb);
+            enc.set_depth(png::BitDepth::Eight);
+            enc.write_header()
+                .and_then(|mut w| w.write_image_data(&c.rgb))
+                .map_err(std::io::Error::other)?;
+            entry.color = Some(name);
+        }
+        self.append(&entry)
+    }
+
+    /// Appends one frame whose colour is an MJPEG camera's buffer, stored as it came
+    /// (`color_NNNNNN.jpg`, replayed as MJPEG).
+    pub fn push_mjpeg(
+        &mut self,
+        seq: u64,
+        mono_ns: u64,
+        depth: Option<&DepthImage>,
+        mjpeg: &[u8],
+    ) -> std::io::Result<()> {
+        let mut entry = self.depth_entry(seq, mono_ns, depth)?;
+        let name = format!("color_{seq:06}.jpg");
+        fs::write(self.dir.join(&name), mjpeg)?;
+        entry.color = Some(name);
+        self.append(&entry)
+    }
+
+    fn append(&mut self, entry: &FrameEntry) -> std::io::Result<()> {
+        writeln!(self.index, "{}", serde_json::to_string(entry)?)?;
+        self.index.sync_data()
+    }
+
+    /// The frame's index entry with its depth file written.
+    fn depth_entry(
+        &mut self,
+        seq: u64,
+        mono_ns: u64,
+        depth: Option<&DepthImage>,
+    ) -> std::io::Result<FrameEntry> {
         let mut entry = FrameEntry {
             seq,
             mono_ns,
@@ -403,23 +461,7 @@ impl Recorder {
             fs::write(self.dir.join(&name), crate::depthio::encode_z16(data))?;
             entry.depth = Some(name);
         }
-        if let Some(c) = color {
-            let name = format!("color_{seq:06}.png");
-            let file = fs::File::create(self.dir.join(&name))?;
-            let mut enc = png::Encoder::new(
-                std::io::BufWriter::new(file),
-                c.width as u32,
-                c.height as u32,
-            );
-            enc.set_color(png::ColorType::Rgb);
-            enc.set_depth(png::BitDepth::Eight);
-            enc.write_header()
-                .and_then(|mut w| w.write_image_data(&c.rgb))
-                .map_err(std::io::Error::other)?;
-            entry.color = Some(name);
-        }
-        writeln!(self.index, "{}", serde_json::to_string(&entry)?)?;
-        self.index.sync_data()
+        Ok(entry)
     }
 }
 
