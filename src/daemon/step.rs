@@ -1,19 +1,19 @@
-//! One depth frame through the daemon: the estimate at the pose of the frame's
-//! instant, the trigger's decision, and the capture record when it fires. Pure:
-//! frames, poses and clocks are arguments, so the flight, `alfd sim` and the
-//! tests run the same decision code.
+//! One depth frame through the daemon: the core's decision (`core::step`) and, when it
+//! captures, the manifest line, with the position and attitude in the flight's frame.
+//! Pure: frames, poses and clocks are arguments, so the flight, `alfd sim` and the tests
+//! run the same code.
 
 use crate::capture::{
     image_file_name, Attitude, CameraIntrinsics, CaptureMode, CaptureRecord, ClosedLoopRecord,
     ImageFormat, Occlusion, Position, QualityRecord, Spacing,
 };
-use crate::core::attitude::{camera_to_body, flight_axis};
-use crate::core::closedloop::{ClosedLoop, ClosedLoopTargets, DepthSnapshot, Measure, View};
+use crate::core::closedloop::Measure;
 use crate::core::geo::LocalFrame;
 use crate::core::pose::Pose;
-use crate::core::trigger::{Capture, Decision, Opportunity, Trigger, TriggerParams};
-use crate::core::{DepthImage, Estimate, Estimator, EstimatorParams, Intrinsics, TrackAxis};
-use glam::{DMat3, EulerRot};
+use crate::core::step::{self as decision, Decided};
+use crate::core::trigger::{Capture, TriggerParams};
+use crate::core::{DepthImage, Estimate, EstimatorParams, Intrinsics};
+use glam::EulerRot;
 
 /// What the pipeline needs besides the estimator and trigger settings.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -56,18 +56,11 @@ pub enum StepOutcome {
     },
 }
 
+/// The core's decision, and the flight's frame and capture settings for its records.
 pub struct Pipeline {
-    estimator: Estimator,
-    trigger: Trigger,
+    decision: decision::Pipeline,
     params: StepParams,
     local: LocalFrame,
-    odometer_m: f64,
-    last_ne_m: Option<[f64; 2]>,
-    seq: u64,
-    /// `Some` when `[trigger] closed_loop` is on.
-    closed_loop: Option<ClosedLoop>,
-    /// The configured scan axis, used while the vehicle hovers.
-    fixed_axis: TrackAxis,
 }
 
 impl Pipeline {
@@ -77,26 +70,24 @@ impl Pipeline {
         params: StepParams,
         local: LocalFrame,
     ) -> Self {
+        let core_params = decision::StepParams {
+            camera_mount_pitch_rad: params.camera_mount_pitch_rad,
+            frame_period_s: params.frame_period_s,
+        };
         Pipeline {
-            fixed_axis: estimator.track_axis,
-            estimator: Estimator::new(estimator),
-            trigger: Trigger::new(trigger),
+            decision: decision::Pipeline::new(estimator, trigger, core_params),
             params,
             local,
-            odometer_m: 0.0,
-            last_ne_m: None,
-            seq: 0,
-            closed_loop: trigger.closed_loop.then(ClosedLoop::default),
         }
     }
 
     pub fn odometer_m(&self) -> f64 {
-        self.odometer_m
+        self.decision.odometer_m()
     }
 
     /// Continue numbering after the captures already in a flight's manifest.
     pub fn set_last_seq(&mut self, seq: u64) {
-        self.seq = seq;
+        self.decision.set_last_seq(seq);
     }
 
     pub fn params(&self) -> &StepParams {
@@ -108,121 +99,48 @@ impl Pipeline {
     }
 
     /// The autopilot's origin moved: positions are expressed around the new
-    /// home from now on. The shift is not distance flown (the odometer
-    /// restarts its differences at the next frame), and the closed loop's
-    /// capture, in the old frame, is forgotten.
+    /// home from now on, and the decision forgets what was in the old frame.
     pub fn set_local(&mut self, local: LocalFrame) {
         self.local = local;
-        self.last_ne_m = None;
-        if let Some(cl) = &mut self.closed_loop {
-            *cl = ClosedLoop::default();
-        }
+        self.decision.origin_moved();
     }
 
     pub fn model(&self) -> &'static str {
-        self.estimator.params().model.as_str()
+        self.decision.model()
     }
 
     pub fn on_frame(&mut self, f: FrameInput) -> StepOutcome {
-        let pose = match f.pose {
-            Ok(p) if p.pos_ned_m.is_finite() && p.q.is_finite() => p,
-            Ok(_) => {
-                return StepOutcome::Suspended {
-                    reason: "pose with non-finite values".into(),
-                }
-            }
-            Err(reason) => return StepOutcome::Suspended { reason },
-        };
-        // Distance flown, horizontally, frame to frame: the trigger's odometer.
-        let ne = [pose.pos_ned_m.x, pose.pos_ned_m.y];
-        if let Some(last) = self.last_ne_m {
-            self.odometer_m += (ne[0] - last[0]).hypot(ne[1] - last[1]);
-        }
-        self.last_ne_m = Some(ne);
-        // Scan along the image axis nearest the direction of flight, with the
-        // camera's tilt along it (a belly camera tilts forward as the nose goes up).
-        let cam_to_ned =
-            DMat3::from_quat(pose.q) * camera_to_body(self.params.camera_mount_pitch_rad);
-        let (axis, camera_pitch) = flight_axis(&cam_to_ned, pose.vel_ned_mps, self.fixed_axis);
-        self.estimator.set_track_axis(axis);
-        let estimate = match f.depth {
-            None => Estimate::without_depth(camera_pitch),
-            Some(depth) => match self.estimator.estimate(depth, f.intrinsics, camera_pitch) {
-                Ok((e, _)) => e,
-                Err(e) => {
-                    return StepOutcome::Suspended {
-                        reason: format!("depth frame does not match the intrinsics: {e}"),
-                    }
-                }
-            },
-        };
-        let speed = pose.vel_ned_mps.x.hypot(pose.vel_ned_mps.y);
-        let next_step_m = speed * self.params.frame_period_s;
-        // The closed loop: this frame against the last capture, in full 6-DoF.
-        let view = match (&self.closed_loop, f.depth) {
-            (Some(_), Some(depth)) if estimate.is_ok() => Some(View {
-                depth: DepthSnapshot::kept(depth, f.intrinsics),
-                cam_to_ned,
-                pos_ned_m: pose.pos_ned_m,
-            }),
-            _ => None,
-        };
-        let q = self.estimator.params().quality;
-        let targets = ClosedLoopTargets {
-            parallax_px: q.parallax_px,
-            unseen_fraction_max: q.unseen_fraction_max,
-        };
-        let measure = match (&mut self.closed_loop, &view) {
-            (Some(cl), Some(v)) => cl.on_frame(v.clone(), self.odometer_m, next_step_m, &targets),
-            _ => None,
-        };
-        let closed_m = measure.and_then(|m| m.spacing_m);
-        let spacing_m = match (estimate.spacing.chosen_m, closed_m) {
-            (Some(a), Some(b)) => Some(a.min(b)),
-            (a, b) => a.or(b),
-        };
-        let decision = self.trigger.update(&Opportunity {
-            time_s: f.mono_ns as f64 * 1e-9,
-            odometer_m: self.odometer_m,
-            next_step_m,
-            spacing_m,
-            pose_fresh: true,
-        });
-        let capture = match decision {
-            Decision::Capture(c) => c,
-            Decision::Wait => {
-                return StepOutcome::Wait {
-                    estimate: Box::new(estimate),
-                }
-            }
-            Decision::Suspended => {
-                return StepOutcome::Suspended {
-                    reason: "trigger suspended".into(),
-                }
-            }
-        };
-        self.seq += 1;
-        if let (Some(cl), Some(v)) = (&mut self.closed_loop, view) {
-            cl.on_capture(v, self.odometer_m);
-        }
-        let record = capture_record(&RecordInputs {
-            seq: self.seq,
+        let outcome = self.decision.on_frame(decision::FrameInput {
             mono_ns: f.mono_ns,
-            pose: &pose,
+            depth: f.depth,
+            intrinsics: f.intrinsics,
+            pose: f.pose,
+        });
+        let d: Decided = match outcome {
+            decision::StepOutcome::Suspended { reason } => {
+                return StepOutcome::Suspended { reason }
+            }
+            decision::StepOutcome::Wait { estimate } => return StepOutcome::Wait { estimate },
+            decision::StepOutcome::Capture(d) => *d,
+        };
+        let record = capture_record(&RecordInputs {
+            seq: d.seq,
+            mono_ns: f.mono_ns,
+            pose: &d.pose,
             boot_us: f.boot_us,
             unix_us: f.unix_us,
             local: &self.local,
-            estimate: Some(&estimate),
-            closed_loop: measure.as_ref(),
-            capture: &capture,
-            model: self.estimator.params().model.as_str(),
+            estimate: Some(&d.estimate),
+            closed_loop: d.closed_loop.as_ref(),
+            capture: &d.capture,
+            model: self.decision.model(),
             mode: self.params.capture_mode,
             image_format: self.params.image_format,
             intrinsics: Some(f.intrinsics),
             mount_pitch_rad: self.params.camera_mount_pitch_rad,
         });
         StepOutcome::Capture {
-            estimate: Box::new(estimate),
+            estimate: Box::new(d.estimate),
             record: Box::new(record),
         }
     }

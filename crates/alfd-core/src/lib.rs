@@ -18,6 +18,7 @@ pub mod plane;
 pub mod pose;
 pub mod score;
 pub mod spacing;
+pub mod step;
 pub mod timesync;
 pub mod trigger;
 pub mod visibility;
