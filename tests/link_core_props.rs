@@ -174,6 +174,61 @@ proptest! {
     }
 }
 
+/// The TIMESYNC filter on simulated time, under what `link_faults`'s
+/// `time_sync_under_10_ms_jitter` puts on a pty: firmware-sim delays each frame it sends by
+/// 0–10 ms (uniform, its `faults.jitter`) and delivers in order (a frame waits for the one
+/// before it), telemetry goes out every 20 ms besides the answers, the request takes 0.1 ms,
+/// the autopilot's clock runs 20 ppm fast (its default drift), exchanges at the link's
+/// default 10 Hz. Sampled every 10 ms over a minute after 5 s, the estimate's RMS error stays
+/// under 1 ms (issue 5's target), the same on every run; over the pty the error is printed,
+/// not asserted (the wall clock is not a test's).
+#[test]
+fn timesync_rms_under_1_ms_with_10_ms_jitter_on_simulated_time() {
+    let mut ts = TimeSync::new(TimeSyncConfig::default());
+    let boot_at: u64 = 3_600_000_000_000;
+    let remote_at = |local: u64| ((local - boot_at) as f64 * (1.0 + 20e-6)) as u64;
+    // SplitMix64: a fixed, seeded sequence of delays.
+    let mut state = 26u64;
+    let mut unit = move || {
+        state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        (z ^ (z >> 31)) as f64 / u64::MAX as f64
+    };
+    const MS: u64 = 1_000_000;
+    let start = boot_at + 2_000 * MS;
+    let (mut sq, mut n, mut worst) = (0.0f64, 0u32, 0.0f64);
+    let (mut last_delivery, mut next_telemetry) = (0u64, start + 7 * MS);
+    let mut delivered = |sent_ns: u64, last: &mut u64| {
+        *last = (*last).max(sent_ns + (unit() * 10.0 * MS as f64) as u64);
+        *last
+    };
+    for k in 0..650u64 {
+        let sent = start + k * 100 * MS;
+        let answered = sent + MS / 10;
+        while next_telemetry < answered {
+            delivered(next_telemetry, &mut last_delivery);
+            next_telemetry += 20 * MS;
+        }
+        let received = delivered(answered, &mut last_delivery);
+        ts.on_exchange(sent, remote_at(answered), received);
+        if k < 50 {
+            continue;
+        }
+        for j in 0..10 {
+            let t = received + j * 10 * MS;
+            let err = ts.local_to_remote(t).expect("synced") as f64 - remote_at(t) as f64;
+            sq += err * err;
+            worst = worst.max(err.abs());
+            n += 1;
+        }
+    }
+    let rms_ms = (sq / n as f64).sqrt() / 1e6;
+    println!("FIGURE TIMESYNC on simulated time, 10 ms jitter: RMS {rms_ms:.3} ms, worst {:.3} ms over {n} samples", worst / 1e6);
+    assert!(rms_ms < 1.0, "RMS {rms_ms} ms");
+}
+
 proptest! {
     #![proptest_config(cases(100))]
 

@@ -254,7 +254,9 @@ async fn time_sync_under_10_ms_jitter() {
     let f = measure(&p, 300, Duration::from_millis(400)).await;
     println!("{}", f.summary("10 ms jitter"));
     assert_eq!(f.unanswered, 0);
-    assert!(rms(&f.sync_err_ns) < 1e6, "{}", f.summary("10 ms jitter"));
+    // The < 1 ms RMS target is asserted on simulated time, where the wall clock cannot
+    // decide it (`link_core_props::timesync_rms_under_1_ms_with_10_ms_jitter_on_simulated_time`);
+    // here the error over the pty is printed in the summary.
     assert!(rms(&f.pos_err_m) < 0.05, "{}", f.summary("10 ms jitter"));
     p.stop().await;
 }

@@ -37,7 +37,9 @@ async fn pose_accuracy(telemetry_hz: f64) -> Figures {
 async fn pose_within_5_cm_rms_at_10_hz() {
     let f = pose_accuracy(10.0).await;
     assert!(rms(&f.pos_err_m) < 0.05, "{}", f.summary("10 Hz"));
-    assert!(rms(&f.sync_err_ns) < 1e6, "{}", f.summary("10 Hz"));
+    // The time sync's < 1 ms RMS is asserted on simulated time
+    // (`link_core_props::timesync_rms_under_1_ms_with_10_ms_jitter_on_simulated_time`); over
+    // the pty it is a figure of this machine, printed in the summary.
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
