@@ -76,6 +76,8 @@ const PERIOD_NS: u64 = 33_333_333;
 /// 1 cm per Z16 unit: 1 mm saturates at 65.5 m and the scene is flown at 100 m.
 const SCALE_M: f64 = 0.01;
 const WARM_UP: Duration = Duration::from_secs(5);
+/// `WatchdogSec=5` in systemd/alfd.service, as systemd passes it.
+const WATCHDOG_USEC: u64 = 5_000_000;
 
 /// Telemetry stream rate, Hz, of each of the three pose streams
 /// (`ALFD_BENCH_TELEMETRY_HZ`; 700 gives the soak's 2,000+ messages/s).
@@ -236,6 +238,10 @@ struct RunFigures {
     hwm_mib: f64,
     exit_ms: f64,
     exit_code: Option<i32>,
+    /// systemd's watchdog as the unit sets it (`WatchdogSec=5`): the longest time between
+    /// two WATCHDOG=1 (READY=1 and STOPPING=1 count as the ends), and how many came.
+    watchdog_longest_gap_ms: f64,
+    watchdog_pets: usize,
     captures_in_window: usize,
     captures_total: usize,
     images: usize,
@@ -314,10 +320,36 @@ fn run_daemon(
         .expect("the bench's daemon config is valid");
     std::fs::write(&config_path, &text).expect("the config is written");
 
+    // systemd's side of sd_notify, with the unit's watchdog: each datagram stamped on arrival.
+    let notify_path = tmp.join(format!("notify-{model}.sock"));
+    let notify_sock = std::os::unix::net::UnixDatagram::bind(&notify_path).expect("a socket");
+    notify_sock
+        .set_read_timeout(Some(Duration::from_millis(100)))
+        .expect("a read timeout");
+    let notify_stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let notify_log = {
+        let stop = notify_stop.clone();
+        std::thread::spawn(move || {
+            let (mut got, mut buf) = (Vec::new(), [0u8; 4096]);
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                if let Ok(n) = notify_sock.recv(&mut buf) {
+                    let at = Instant::now();
+                    for line in String::from_utf8_lossy(&buf[..n]).lines() {
+                        got.push((at, line.to_owned()));
+                    }
+                }
+            }
+            got
+        })
+    };
+
     let started = Instant::now();
     let mut child: Child = Command::new(env!("CARGO_BIN_EXE_alfd"))
         .args(["run", "--config"])
         .arg(&config_path)
+        .env("NOTIFY_SOCKET", &notify_path)
+        .env("WATCHDOG_USEC", WATCHDOG_USEC.to_string())
+        .env_remove("WATCHDOG_PID")
         .stdin(Stdio::null())
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
@@ -388,6 +420,18 @@ fn run_daemon(
     };
     f.exit_ms = term.elapsed().as_secs_f64() * 1e3;
     f.exit_code = status.code();
+    notify_stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    let notes = notify_log.join().unwrap_or_default();
+    let pets: Vec<Instant> = notes
+        .iter()
+        .filter(|(_, t)| matches!(t.as_str(), "READY=1" | "WATCHDOG=1" | "STOPPING=1"))
+        .map(|(at, _)| *at)
+        .collect();
+    f.watchdog_pets = notes.iter().filter(|(_, t)| t == "WATCHDOG=1").count();
+    f.watchdog_longest_gap_ms = pets
+        .windows(2)
+        .map(|w| (w[1] - w[0]).as_secs_f64() * 1e3)
+        .fold(f64::NAN, f64::max);
     let lines = log.join().unwrap_or_default();
     f.stopped_line = lines.iter().rev().find(|l| l.contains("stopped:")).cloned();
     if let Some((d, s, b)) = f.stopped_line.as_deref().and_then(parse_stopped) {
@@ -538,6 +582,8 @@ fn figures_json(f: &RunFigures) -> serde_json::Value {
         "rss_growth_mib": f.rss_end_mib - f.rss_warm_mib,
         "vm_hwm_mib": f.hwm_mib,
         "exit_after_sigterm_ms": f.exit_ms,
+        "watchdog_longest_gap_ms": f.watchdog_longest_gap_ms,
+        "watchdog_pets": f.watchdog_pets,
         "exit_code": f.exit_code,
         "captures_in_window": f.captures_in_window,
         "captures_per_s": f.captures_in_window as f64 / window_s.max(1.0),
@@ -638,6 +684,7 @@ fn main() {
         ("RSS growth, MiB", |r| r.rss_end_mib - r.rss_warm_mib),
         ("VmHWM, MiB", |r| r.hwm_mib),
         ("exit after SIGTERM, ms", |r| r.exit_ms),
+        ("watchdog: longest gap, ms", |r| r.watchdog_longest_gap_ms),
         ("captures/s in window", |r| {
             r.captures_in_window as f64 / r.cpu_per_second_pct.len().max(1) as f64
         }),
@@ -689,7 +736,7 @@ fn main() {
         occ.cpu_mean_pct - base.cpu_mean_pct
     );
     println!(
-        "daemon: targets: CPU < 25 % ({}), RSS < 40 MB ({}), exit <= 2 s ({})",
+        "daemon: targets: CPU < 25 % ({}), RSS < 40 MB ({}), exit <= 2 s ({}), watchdog fed within {} s ({}: longest gap {:.0} ms over {} WATCHDOG=1)",
         if occ.cpu_mean_pct < 25.0 {
             "met"
         } else {
@@ -705,6 +752,15 @@ fn main() {
         } else {
             "NOT met"
         },
+        WATCHDOG_USEC / 1_000_000,
+        // NaN (no pets seen) is not met.
+        if occ.watchdog_longest_gap_ms < WATCHDOG_USEC as f64 / 1e3 {
+            "met"
+        } else {
+            "NOT met"
+        },
+        occ.watchdog_longest_gap_ms,
+        occ.watchdog_pets,
     );
     println!("daemon: stages in this process (median ms): {stages}");
     // What the stages predict, as % of one core: per second, 30 depth frames read and

@@ -24,7 +24,7 @@ use std::pin::{pin, Pin};
 use std::task::{Context, Poll, Waker};
 
 use alfd::capture::tlog;
-use alfd::core::allowlist::{self, Trust};
+use alfd::core::allowlist::{self, Refusal, Trust};
 use alfd::daemon::camera::{CameraInfo, CameraProtocol};
 use alfd::link::{LinkConfig, Reaction, Tracker};
 use libfuzzer_sys::fuzz_target;
@@ -218,6 +218,14 @@ impl LinkSide {
     }
 }
 
+/// Messages that set modes, missions, attitude, position or sticks: SET_MODE,
+/// MISSION_ITEM, MANUAL_CONTROL, RC_CHANNELS_OVERRIDE, MISSION_ITEM_INT, COMMAND_INT,
+/// SET_ATTITUDE_TARGET, SET_POSITION_TARGET_LOCAL_NED and _GLOBAL_INT.
+const FLIGHT_MESSAGES: [u32; 9] = [11, 39, 69, 70, 73, 75, 82, 84, 86];
+/// Commands that move or arm the vehicle: NAV_WAYPOINT, NAV_RETURN_TO_LAUNCH, NAV_LAND,
+/// NAV_TAKEOFF, DO_SET_MODE, DO_REPOSITION, COMPONENT_ARM_DISARM.
+const FLIGHT_COMMANDS: [u32; 7] = [16, 20, 21, 22, 176, 192, 400];
+
 fn command_of(msg: &MavMessage) -> Option<u32> {
     match msg {
         MavMessage::COMMAND_LONG(c) => Some(c.command as u32),
@@ -248,9 +256,15 @@ fn digest(h: MavHeader, msg: &MavMessage, camera: &mut CameraProtocol) {
         mavlink::write_v2_msg(&mut again, h2, &m2).expect("re-encodes");
         assert_eq!(again, bytes);
     }
-    // The allow-list is consulted for received ids only through replies; it must answer
-    // every id without panicking.
-    let _ = allowlist::may_send(msg.message_id(), command_of(msg));
+    // Whatever comes in, nothing that flies the vehicle may go out: the allow-list refuses
+    // every flight-control message and command (this list is independent of its tables).
+    let answer = allowlist::may_send(msg.message_id(), command_of(msg));
+    if FLIGHT_MESSAGES.contains(&msg.message_id()) {
+        assert_eq!(answer, Err(Refusal::Message(msg.message_id())));
+    }
+    if let Some(cmd) = command_of(msg).filter(|c| FLIGHT_COMMANDS.contains(c)) {
+        assert_eq!(answer, Err(Refusal::Command(cmd)));
+    }
     if let MavMessage::COMMAND_LONG(c) = msg {
         let params = [
             c.param1, c.param2, c.param3, c.param4, c.param5, c.param6, c.param7,

@@ -311,10 +311,18 @@ fn image_of(
             Err(e) => kept_reason = Some(e),
         }
     }
-    let rgb = frame.data.decode().map_err(|e| match &kept_reason {
-        Some(k) => format!("colour frame {}: {k}; decoding: {e}", frame.seq),
-        None => format!("colour frame {} does not decode: {e}", frame.seq),
-    })?;
+    let decoded;
+    let rgb = match &frame.data {
+        // Already pixels (a synthetic camera): no copy.
+        RawColor::Rgb(c) => c,
+        other => {
+            decoded = other.decode().map_err(|e| match &kept_reason {
+                Some(k) => format!("colour frame {}: {k}; decoding: {e}", frame.seq),
+                None => format!("colour frame {} does not decode: {e}", frame.seq),
+            })?;
+            &decoded
+        }
+    };
     encode_capture(
         &rgb.rgb,
         rgb.width as u32,
