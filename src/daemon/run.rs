@@ -189,102 +189,38 @@ pub async fn run(
     let tlog = Arc::new(TlogQueue::default());
     let tap_forward = tokio::spawn(forward_tap(tap_rx, tlog.clone(), stop.clone()));
 
-    // The colour frames, and the writer.
-    let (frame_at, frame_thread) = match devices.frames {
-        None => (None, None),
-        Some(Frames::AtInstant(f)) => (Some(f), None),
-        Some(Frames::Stream(s)) => {
-            let (ring, h) = stream_thread(
-                s,
-                ring_frames(config.camera.fps),
-                (2e9 / config.camera.fps) as u64,
-                stop.clone(),
-            );
-            (Some(Box::new(ring) as Box<dyn FrameAt>), Some(h))
-        }
-    };
-    let saves_frames = frame_at.is_some();
-    let space = Arc::new(Space::default());
-    let (writer_tx, writer_rx) = mpsc::channel::<WriteJob>(WRITE_QUEUE);
-    let (written_tx, written_rx) = mpsc::channel::<Written>(WRITTEN_QUEUE);
-    let writer = {
-        let ctx = WriterCtx {
-            store,
-            format: config.capture.image_format,
-            keep_camera_jpeg: config.capture.keep_camera_jpeg,
-            frames: frame_at,
-            space: space.clone(),
-            make_model: (
-                "alfd".to_string(),
-                format!("{} {}", config.camera.width, config.camera.height),
-            ),
-            rt: rt.clone(),
-        };
-        let tlog = tlog.clone();
-        spawn_thread("alfd-writer", move || {
-            writer_thread(ctx, writer_rx, tlog, written_tx)
-        })
-    };
-
-    // The depth source and the estimator. Depth → estimator holds one frame (a frame
-    // arriving while the estimator is busy is skipped and counted).
-    let counters = Arc::new(Counters::default());
-    let depth: Box<dyn DepthSource> = match devices.depth {
-        Some(d) => d,
-        None => Box::new(Ticks {
-            period_ns: (1e9 / devices.tick_hz.max(1.0)) as u64,
-            next_ns: 0,
-            seq: 0,
-            intrinsics: Intrinsics::from_hfov_deg(1, 1, 69.0, None)
-                .map_err(|e| RunError::Config(e.to_string()))?,
-        }),
-    };
-    let intrinsics = depth.intrinsics();
-    let (depth_tx, depth_rx) = std::sync::mpsc::sync_channel(1);
-    let (decided_tx, decided_rx) = mpsc::channel(DECIDED_QUEUE);
-    let (view_tx, view_rx) = watch::channel::<Option<EstimatorView>>(None);
-    let depth_join = {
-        let (fail, stop, counters) = (decided_tx.clone(), stop.clone(), counters.clone());
-        spawn_thread("alfd-depth", move || {
-            depth_thread(depth, depth_tx, fail, stop, counters)
-        })
-    };
-    let est_join = {
-        let ctx = EstimatorCtx {
-            link: link.clone(),
-            rt: rt.clone(),
-            intrinsics,
-            config: config.clone(),
-            last_seq,
-            shutdown: stop.clone(),
-            keep_samples: options.keep_samples,
-            on_sample: options.on_sample.take(),
-        };
-        spawn_thread("alfd-estimator", move || {
-            estimator_thread(ctx, depth_rx, view_tx, decided_tx)
-        })
-    };
+    let w = spawn_writer(&config, store, devices.frames, tlog.clone(), &stop, &rt);
+    let e = spawn_estimation(
+        &config,
+        devices.depth,
+        devices.tick_hz,
+        &link,
+        &rt,
+        last_seq,
+        &stop,
+        &mut options,
+    )?;
 
     // The coordinator, last: it takes from all of the above.
     // Located poses: one per capture waiting for its pose, of which the coordinator keeps
     // at most LOCATING_MAX, so a send never finds it full.
     let (located_tx, located_rx) = mpsc::channel(LOCATING_MAX);
     let mut lp = Loop {
-        co: Coordinator::new(&config, last_seq, saves_frames.then_some(intrinsics)),
+        co: Coordinator::new(&config, last_seq, w.saves_frames.then_some(e.intrinsics)),
         out: Outbox {
             link: link.clone(),
             located: located_tx,
-            writer: Some(writer_tx),
+            writer: Some(w.jobs),
             backlog: VecDeque::new(),
         },
         link: link.clone(),
         link_events,
-        decided: decided_rx,
-        views: view_rx,
-        written: written_rx,
+        decided: e.decided,
+        views: e.views,
+        written: w.written,
         located: located_rx,
-        space,
-        counters: counters.clone(),
+        space: w.space,
+        counters: e.counters.clone(),
     };
     lp.start().await;
     let _ = options.notifier.ready();
@@ -311,6 +247,7 @@ pub async fn run(
     lp.take_decided(Duration::from_millis(600)).await;
     // Threads blocked in a device read are left behind rather than holding the exit past
     // its budget; normally they end within a frame.
+    let (depth_join, est_join) = (e.depth_join, e.est_join);
     let est_report = tokio::time::timeout(
         Duration::from_millis(400),
         tokio::task::spawn_blocking(move || {
@@ -322,9 +259,10 @@ pub async fn run(
     .ok()
     .and_then(|r| r.ok())
     .unwrap_or_default();
-    drop(frame_thread);
+    drop(w.frame_thread);
     lp.hand_over().await;
     lp.close_writer().await;
+    let writer = w.join;
     let wreport = tokio::task::spawn_blocking(move || writer.join())
         .await
         .ok()
@@ -347,12 +285,142 @@ pub async fn run(
         flight_dir: options.flight_dir.clone(),
         tlog_frames_dropped: tlog.dropped(),
         shutdown_ns: mono_ns().saturating_sub(stop_began_ns),
-        ..report(lp.co, est_report, &counters, &link, wreport)
+        ..report(lp.co, est_report, &e.counters, &link, wreport)
     };
     if let Some(l) = &report.latency {
         tracing::info!("{l}");
     }
     Ok(report)
+}
+
+/// The writer's side of a run: its thread, its two queues, and the colour frames it
+/// reads (a streaming camera's thread and ring, or a source rendering at an instant).
+struct Writing {
+    join: std::thread::JoinHandle<WriterReport>,
+    /// Captures to log: bounded, and never waited on (the coordinator keeps a backlog).
+    jobs: mpsc::Sender<WriteJob>,
+    /// The writer's answers: bounded; the writer waits when full.
+    written: mpsc::Receiver<Written>,
+    space: Arc<Space>,
+    saves_frames: bool,
+    frame_thread: Option<std::thread::JoinHandle<()>>,
+}
+
+fn spawn_writer(
+    config: &Config,
+    store: BoxedStore,
+    frames: Option<Frames>,
+    tlog: Arc<TlogQueue>,
+    stop: &shutdown::Shutdown,
+    rt: &tokio::runtime::Handle,
+) -> Writing {
+    let (frame_at, frame_thread) = match frames {
+        None => (None, None),
+        Some(Frames::AtInstant(f)) => (Some(f), None),
+        Some(Frames::Stream(s)) => {
+            let (ring, h) = stream_thread(
+                s,
+                ring_frames(config.camera.fps),
+                (2e9 / config.camera.fps) as u64,
+                stop.clone(),
+            );
+            (Some(Box::new(ring) as Box<dyn FrameAt>), Some(h))
+        }
+    };
+    let saves_frames = frame_at.is_some();
+    let space = Arc::new(Space::default());
+    let (jobs, jobs_rx) = mpsc::channel::<WriteJob>(WRITE_QUEUE);
+    let (written_tx, written) = mpsc::channel::<Written>(WRITTEN_QUEUE);
+    let ctx = WriterCtx {
+        store,
+        format: config.capture.image_format,
+        keep_camera_jpeg: config.capture.keep_camera_jpeg,
+        frames: frame_at,
+        space: space.clone(),
+        make_model: (
+            "alfd".to_string(),
+            format!("{} {}", config.camera.width, config.camera.height),
+        ),
+        rt: rt.clone(),
+    };
+    let join = spawn_thread("alfd-writer", move || {
+        writer_thread(ctx, jobs_rx, tlog, written_tx)
+    });
+    Writing {
+        join,
+        jobs,
+        written,
+        space,
+        saves_frames,
+        frame_thread,
+    }
+}
+
+/// The depth and estimator threads, and what the coordinator reads of them.
+struct Estimation {
+    intrinsics: Intrinsics,
+    counters: Arc<Counters>,
+    decided: mpsc::Receiver<super::estimator_task::Decided>,
+    views: watch::Receiver<Option<EstimatorView>>,
+    depth_join: std::thread::JoinHandle<()>,
+    est_join: std::thread::JoinHandle<EstimatorReport>,
+}
+
+/// Depth → estimator holds one frame (a frame arriving while the estimator is busy is
+/// skipped and counted). Without a depth source, opportunities tick at `tick_hz`.
+#[allow(clippy::too_many_arguments)]
+fn spawn_estimation(
+    config: &Config,
+    depth: Option<Box<dyn DepthSource>>,
+    tick_hz: f64,
+    link: &LinkHandle,
+    rt: &tokio::runtime::Handle,
+    last_seq: u64,
+    stop: &shutdown::Shutdown,
+    options: &mut RunOptions,
+) -> Result<Estimation, RunError> {
+    let counters = Arc::new(Counters::default());
+    let depth: Box<dyn DepthSource> = match depth {
+        Some(d) => d,
+        None => Box::new(Ticks {
+            period_ns: (1e9 / tick_hz.max(1.0)) as u64,
+            next_ns: 0,
+            seq: 0,
+            intrinsics: Intrinsics::from_hfov_deg(1, 1, 69.0, None)
+                .map_err(|e| RunError::Config(e.to_string()))?,
+        }),
+    };
+    let intrinsics = depth.intrinsics();
+    let (depth_tx, depth_rx) = std::sync::mpsc::sync_channel(1);
+    let (decided_tx, decided) = mpsc::channel(DECIDED_QUEUE);
+    let (view_tx, views) = watch::channel::<Option<EstimatorView>>(None);
+    let depth_join = {
+        let (fail, stop, counters) = (decided_tx.clone(), stop.clone(), counters.clone());
+        spawn_thread("alfd-depth", move || {
+            depth_thread(depth, depth_tx, fail, stop, counters)
+        })
+    };
+    let ctx = EstimatorCtx {
+        link: link.clone(),
+        rt: rt.clone(),
+        intrinsics,
+        config: config.clone(),
+        last_seq,
+        shutdown: stop.clone(),
+        keep_samples: options.keep_samples,
+        on_sample: options.on_sample.take(),
+    };
+    let est_join = spawn_thread("alfd-estimator", move || {
+        estimator_thread(ctx, depth_rx, view_tx, decided_tx)
+    });
+    Ok(Estimation {
+        intrinsics,
+        counters,
+        decided,
+        views,
+        depth_join,
+        est_join,
+    })
 }
 
 /// The capture store (a directory on disk unless the caller handed one in) and the last
