@@ -729,7 +729,7 @@ fn main() {
     let ratio = occ.cpu_mean_pct / base.cpu_mean_pct;
     println!();
     println!(
-        "daemon: {} CPU {:.1} % of one core = {ratio:.2}x the fixed-model baseline ({:.1} %); estimator share {:.1} points",
+        "daemon: {} CPU {:.1} % of one core = {ratio:.2}x the fixed-model baseline ({:.1} %); above it by {:.1} points (the estimate and the image work of its more frequent captures)",
         occ.model,
         occ.cpu_mean_pct,
         base.cpu_mean_pct,
