@@ -8,9 +8,8 @@ mod tools;
 
 use alfd::capture::{read_manifest, CaptureRecord};
 use firmware_sim::{SimConfig, SimEvent};
-use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::Child;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -73,22 +72,7 @@ async fn fly(mode: &str) -> Flight {
         tools::synthetic_tower_config(sim.address(), &captures, mode),
     )
     .unwrap();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_alfd"))
-        .args(["run", "--log-format", "json", "--config"])
-        .arg(&config)
-        .env_remove("NOTIFY_SOCKET")
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let stderr = child.stderr.take().unwrap();
-    let log = std::thread::spawn(move || {
-        BufReader::new(stderr)
-            .lines()
-            .map_while(Result::ok)
-            .collect::<Vec<_>>()
-    });
+    let (child, log) = tools::alfd_run(&config, &[("NOTIFY_SOCKET", None)]);
     Flight {
         dir,
         sim,

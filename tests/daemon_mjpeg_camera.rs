@@ -15,9 +15,7 @@ use alfd::scene::Scene;
 use alfd::source::recorded::{Recorder, RecordingMeta};
 use alfd::source::ColorImage;
 use std::collections::HashSet;
-use std::io::{BufRead, BufReader};
 use std::path::Path;
-use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 const W: usize = 160;
@@ -128,17 +126,9 @@ async fn fly(keep: bool, want: usize) -> (usize, u64) {
     let dir = tempfile::tempdir().unwrap();
     let recording = dir.path().join("recording");
     let scans = record(&recording);
-    let mut sc = firmware_sim::SimConfig {
-        transport: firmware_sim::Transport::Pty {
-            link: Some(dir.path().join("ttyFC")),
-        },
-        ..firmware_sim::SimConfig::default()
-    };
-    sc.survey.pattern = firmware_sim::Pattern::Line;
-    sc.survey.altitude_m = 60.0;
-    sc.survey.length_m = 500.0;
-    sc.survey.speed_mps = 10.0;
-    let sim = firmware_sim::start(sc).await.unwrap();
+    let sim = firmware_sim::start(tools::line_sim(dir.path()))
+        .await
+        .unwrap();
     let captures = dir.path().join("captures");
     let config_path = dir.path().join("alfd.toml");
     std::fs::write(
@@ -146,21 +136,7 @@ async fn fly(keep: bool, want: usize) -> (usize, u64) {
         config(sim.address(), &recording, &captures, keep),
     )
     .unwrap();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_alfd"))
-        .args(["run", "--log-format", "json", "--config"])
-        .arg(&config_path)
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let stderr = child.stderr.take().unwrap();
-    let log = std::thread::spawn(move || {
-        BufReader::new(stderr)
-            .lines()
-            .map_while(Result::ok)
-            .collect::<Vec<_>>()
-    });
+    let (mut child, log) = tools::alfd_run(&config_path, &[]);
     let manifest = captures.join("flight-001").join("manifest.jsonl");
     let deadline = Instant::now() + Duration::from_secs(90);
     while std::fs::read_to_string(&manifest).map_or(0, |t| t.lines().count()) < want {

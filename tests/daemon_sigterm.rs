@@ -12,9 +12,7 @@
 mod tools;
 
 use alfd::capture::{read_manifest, tlog};
-use std::io::{BufRead, BufReader};
 use std::os::unix::net::UnixDatagram;
-use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 /// `WatchdogSec=5` in systemd/alfd.service, as systemd passes it.
@@ -59,19 +57,9 @@ fn check_notifications(notes: &[(Instant, String)], term: Instant, exited: Insta
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn sigterm_flushes_the_manifest_and_exports_and_exits() {
     let dir = tempfile::tempdir().unwrap();
-    let mut sc = firmware_sim::SimConfig {
-        transport: firmware_sim::Transport::Pty {
-            link: Some(dir.path().join("ttyFC")),
-        },
-        ..firmware_sim::SimConfig::default()
-    };
-    sc.survey.pattern = firmware_sim::Pattern::Line;
-    sc.survey.altitude_m = 60.0;
-    sc.survey.length_m = 500.0;
-    sc.survey.speed_mps = 10.0;
-    sc.survey.wind_m = 0.0;
-    sc.survey.wind_deg = 0.0;
-    let sim = firmware_sim::start(sc).await.unwrap();
+    let sim = firmware_sim::start(tools::line_sim(dir.path()))
+        .await
+        .unwrap();
     let captures = dir.path().join("captures");
     let config = dir.path().join("alfd.toml");
     std::fs::write(
@@ -103,24 +91,15 @@ async fn sigterm_flushes_the_manifest_and_exports_and_exits() {
             got
         })
     };
-    let mut child = Command::new(env!("CARGO_BIN_EXE_alfd"))
-        .args(["run", "--log-format", "json", "--config"])
-        .arg(&config)
-        .env("NOTIFY_SOCKET", &notify_path)
-        .env("WATCHDOG_USEC", WATCHDOG_USEC.to_string())
-        .env_remove("WATCHDOG_PID")
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let stderr = child.stderr.take().unwrap();
-    let log = std::thread::spawn(move || {
-        BufReader::new(stderr)
-            .lines()
-            .map_while(Result::ok)
-            .collect::<Vec<_>>()
-    });
+    let watchdog_usec = WATCHDOG_USEC.to_string();
+    let (mut child, log) = tools::alfd_run(
+        &config,
+        &[
+            ("NOTIFY_SOCKET", notify_path.to_str()),
+            ("WATCHDOG_USEC", Some(&watchdog_usec)),
+            ("WATCHDOG_PID", None),
+        ],
+    );
     // Wait until captures are being written, then stop it mid-flight.
     let manifest = captures.join("flight-001").join("manifest.jsonl");
     let deadline = Instant::now() + Duration::from_secs(60);

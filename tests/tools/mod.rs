@@ -4,8 +4,10 @@
 //! skipping. And the config of `alfd run` on synthetic cameras over the tower scene.
 #![allow(dead_code)]
 
+use std::io::{BufRead, BufReader};
 use std::path::Path;
-use std::process::{Command, Stdio};
+use std::process::{Child, Command, Stdio};
+use std::thread::JoinHandle;
 
 /// `alfd run`'s config against the autopilot at `address`: 160×120 synthetic depth and colour
 /// over `tests/data/tower.toml`, posed from telemetry, captures in `captures` in `mode`.
@@ -34,6 +36,49 @@ dir = {captures:?}
 mode = "{mode}"
 "#
     )
+}
+
+/// firmware-sim on a pseudo-terminal in `dir`: a 500 m line north at 60 m and 10 m/s, no wind.
+pub fn line_sim(dir: &Path) -> firmware_sim::SimConfig {
+    let mut sc = firmware_sim::SimConfig {
+        transport: firmware_sim::Transport::Pty {
+            link: Some(dir.join("ttyFC")),
+        },
+        ..firmware_sim::SimConfig::default()
+    };
+    sc.survey.pattern = firmware_sim::Pattern::Line;
+    sc.survey.altitude_m = 60.0;
+    sc.survey.length_m = 500.0;
+    sc.survey.speed_mps = 10.0;
+    sc.survey.wind_m = 0.0;
+    sc.survey.wind_deg = 0.0;
+    sc
+}
+
+/// `alfd run --log-format json --config CONFIG` as a child, with `env` set (`Some`) or
+/// removed (`None`), and a thread collecting its stderr's lines until it exits.
+pub fn alfd_run(config: &Path, env: &[(&str, Option<&str>)]) -> (Child, JoinHandle<Vec<String>>) {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_alfd"));
+    cmd.args(["run", "--log-format", "json", "--config"])
+        .arg(config)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped());
+    for (k, v) in env {
+        match v {
+            Some(v) => cmd.env(k, v),
+            None => cmd.env_remove(k),
+        };
+    }
+    let mut child = cmd.spawn().expect("alfd starts");
+    let stderr = child.stderr.take().expect("stderr is piped");
+    let log = std::thread::spawn(move || {
+        BufReader::new(stderr)
+            .lines()
+            .map_while(Result::ok)
+            .collect::<Vec<_>>()
+    });
+    (child, log)
 }
 
 fn required(present: bool, test: &str, what: &str, install: &str) -> bool {
