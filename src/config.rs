@@ -437,7 +437,7 @@ impl RawConfig {
 }
 
 /// Where frames come from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
 pub enum SourceKind {
     Synthetic,
     V4l2,
@@ -508,11 +508,35 @@ pub enum SimPose {
     Telemetry,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
 pub enum CameraCommand {
     #[default]
+    #[value(name = "image_start_capture")]
     ImageStartCapture,
+    #[value(name = "digicam_control")]
     DigicamControl,
+}
+
+/// `[camera] format`: what a V4L2 colour camera is asked to stream.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum ColourFormat {
+    Mjpeg,
+    Yuyv,
+}
+
+/// `replay` of a recorded source.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum Replay {
+    #[value(name = "as_recorded")]
+    AsRecorded,
+    Live,
+}
+
+/// `[capture] image_format`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum ImageFormatName {
+    Jpeg,
+    Png,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -551,20 +575,6 @@ pub struct Config {
     pub sim_scene: Option<PathBuf>,
     pub capture: CaptureConfig,
     pub trigger: TriggerParams,
-}
-
-fn word<T: Copy>(field: &str, value: &str, choices: &[(&str, T)]) -> Result<T, (String, String)> {
-    choices
-        .iter()
-        .find(|(w, _)| *w == value)
-        .map(|(_, t)| *t)
-        .ok_or_else(|| {
-            let names: Vec<String> = choices.iter().map(|(w, _)| format!("\"{w}\"")).collect();
-            (
-                field.to_string(),
-                format!("unknown value {value:?}: use {}", names.join(", ")),
-            )
-        })
 }
 
 /// A name of `T` as the command line accepts it (clap's `ValueEnum`), so the
@@ -624,25 +634,13 @@ fn resolve(base: &Path, p: &Path) -> PathBuf {
 
 fn source(section: &str, r: &RawSource, base: &Path) -> Result<SourceConfig, (String, String)> {
     let f = |key: &str| format!("{section}.{key}");
-    let kinds = [
-        ("synthetic", SourceKind::Synthetic),
-        ("v4l2", SourceKind::V4l2),
-        ("recorded", SourceKind::Recorded),
-        ("none", SourceKind::None),
-    ];
     let kind = match &r.source {
-        Some(w) => word(&f("source"), w, &kinds)?,
+        Some(w) => named(&f("source"), w)?,
         None => SourceKind::None,
     };
-    let mjpeg = match r.format.as_deref() {
-        None | Some("mjpeg") => true,
-        Some("yuyv") => false,
-        Some(other) => {
-            return Err((
-                f("format"),
-                format!("unknown format {other:?}: use \"mjpeg\" or \"yuyv\""),
-            ))
-        }
+    let mjpeg = match &r.format {
+        Some(w) => named::<ColourFormat>(&f("format"), w)? == ColourFormat::Mjpeg,
+        None => true,
     };
     let hfov_deg = r.hfov_deg.unwrap_or(69.0);
     if !(1.0..=170.0).contains(&hfov_deg) {
@@ -651,15 +649,9 @@ fn source(section: &str, r: &RawSource, base: &Path) -> Result<SourceConfig, (St
             format!("must be between 1 and 170 degrees, got {hfov_deg}"),
         ));
     }
-    let replay_live = match r.replay.as_deref() {
-        None | Some("as_recorded") => false,
-        Some("live") => true,
-        Some(other) => {
-            return Err((
-                f("replay"),
-                format!("unknown replay {other:?}: use \"as_recorded\" or \"live\""),
-            ))
-        }
+    let replay_live = match &r.replay {
+        Some(w) => named::<Replay>(&f("replay"), w)? == Replay::Live,
+        None => false,
     };
     let mount_pitch_deg = r.mount_pitch_deg.unwrap_or(0.0);
     if !(mount_pitch_deg.is_finite() && (-90.0..=90.0).contains(&mount_pitch_deg)) {
@@ -761,15 +753,14 @@ impl RawConfig {
                 ))
             }
         };
-        let image_format = match c.image_format.as_deref() {
-            None | Some("jpeg") => ImageFormat::Jpeg { quality },
-            Some("png") => ImageFormat::Png,
-            Some(other) => {
-                return Err((
-                    "capture.image_format".into(),
-                    format!("unknown format {other:?}: use \"jpeg\" or \"png\""),
-                ))
-            }
+        let image_format = match c
+            .image_format
+            .as_deref()
+            .map(|w| named("capture.image_format", w))
+        {
+            None | Some(Ok(ImageFormatName::Jpeg)) => ImageFormat::Jpeg { quality },
+            Some(Ok(ImageFormatName::Png)) => ImageFormat::Png,
+            Some(Err(e)) => return Err(e),
         };
         if c.keep_camera_jpeg == Some(true) && image_format == ImageFormat::Png {
             return Err((
@@ -778,14 +769,7 @@ impl RawConfig {
             ));
         }
         let command = match &c.command {
-            Some(w) => word(
-                "capture.command",
-                w,
-                &[
-                    ("image_start_capture", CameraCommand::ImageStartCapture),
-                    ("digicam_control", CameraCommand::DigicamControl),
-                ],
-            )?,
+            Some(w) => named("capture.command", w)?,
             None => CameraCommand::ImageStartCapture,
         };
         let t = &self.trigger;
@@ -956,6 +940,91 @@ mod tests {
         );
         assert_eq!(c.capture.image_format, ImageFormat::Png);
         assert_eq!(c.trigger.rate_max_hz, 15.0);
+    }
+
+    /// Every word-valued field takes its documented names (one list each, clap's
+    /// `ValueEnum`, shared with the command line where it has the flag), and an unknown
+    /// word is refused naming the field and the names it takes.
+    #[test]
+    fn word_fields_take_their_names_and_refuse_others_listing_them() {
+        let ok = |text: &str| Config::from_text(text, "x.toml").unwrap();
+        let c = ok("[camera]
+source = \"recorded\"
+dir = \"r\"
+replay = \"live\"
+");
+        assert!(matches!(
+            c.camera.source,
+            Source::Recorded {
+                replay_live: true,
+                ..
+            }
+        ));
+        let c = ok("[camera]
+source = \"recorded\"
+dir = \"r\"
+replay = \"as_recorded\"
+");
+        assert!(matches!(
+            c.camera.source,
+            Source::Recorded {
+                replay_live: false,
+                ..
+            }
+        ));
+        for (word, mjpeg) in [("mjpeg", true), ("yuyv", false)] {
+            let c = ok(&format!(
+                "[camera]\nsource = \"v4l2\"\ndevice_serial = \"1\"\nformat = \"{word}\"\n"
+            ));
+            assert!(matches!(c.camera.source, Source::V4l2 { mjpeg: m, .. } if m == mjpeg));
+        }
+        assert_eq!(
+            ok("[capture]\nimage_format = \"png\"\n")
+                .capture
+                .image_format,
+            ImageFormat::Png
+        );
+        for (word, cmd) in [
+            ("image_start_capture", CameraCommand::ImageStartCapture),
+            ("digicam_control", CameraCommand::DigicamControl),
+        ] {
+            let c = ok(&format!("[capture]\ncommand = \"{word}\"\n"));
+            assert_eq!(c.capture.command, cmd);
+        }
+        assert_eq!(
+            ok("[depth]\nsource = \"none\"\n").depth.kind(),
+            SourceKind::None
+        );
+        for (text, field, names) in [
+            (
+                "[camera]\nsource = \"webcam\"\n",
+                "camera.source",
+                "\"synthetic\", \"v4l2\", \"recorded\", \"none\"",
+            ),
+            (
+                "[camera]\nformat = \"h264\"\n",
+                "camera.format",
+                "\"mjpeg\", \"yuyv\"",
+            ),
+            (
+                "[depth]\nreplay = \"fast\"\n",
+                "depth.replay",
+                "\"as_recorded\", \"live\"",
+            ),
+            (
+                "[capture]\nimage_format = \"tiff\"\n",
+                "capture.image_format",
+                "\"jpeg\", \"png\"",
+            ),
+            (
+                "[capture]\ncommand = \"shoot\"\n",
+                "capture.command",
+                "\"image_start_capture\", \"digicam_control\"",
+            ),
+        ] {
+            let e = Config::from_text(text, "x.toml").unwrap_err().to_string();
+            assert!(e.contains(field) && e.contains(names), "{text:?}: {e}");
+        }
     }
 
     #[test]
