@@ -4,7 +4,9 @@
 //! (`Frames::Stream`, the camera's ring, the writer) as in flight. With
 //! `keep_camera_jpeg` (the default) every image is the camera's own scan, byte for byte,
 //! with the standard tables and alfd's EXIF added; with it off, every image is
-//! re-encoded. Either way each image decodes and its EXIF places it where the manifest does.
+//! re-encoded. Either way each image decodes, its EXIF places it where the manifest does, and
+//! the manifest gives it the colour camera's intrinsics (60° here), not the depth camera's
+//! (69°).
 
 mod tools;
 
@@ -21,6 +23,8 @@ use std::time::{Duration, Instant};
 const W: usize = 160;
 const H: usize = 120;
 const FRAMES: usize = 30;
+/// The colour camera's field of view: narrower than the depth camera's 69°, as on a D435.
+const COLOUR_HFOV_DEG: f64 = 60.0;
 
 /// The bytes from the scan's start to the end of the image: what an encoder wrote.
 fn scan(jpeg: &[u8]) -> &[u8] {
@@ -63,19 +67,20 @@ fn record(dir: &Path) -> HashSet<Vec<u8>> {
     };
     let mut rec = Recorder::create(dir, meta).unwrap();
     let mut scans = HashSet::new();
+    let colour_intr = Intrinsics::from_hfov_deg(W, H, COLOUR_HFOV_DEG, None).unwrap();
     for i in 0..FRAMES {
-        let camera = Camera {
+        let at = |intrinsics| Camera {
             position_m: [-5.0 + i as f64 / 3.0, 0.0, 60.0],
             roll_rad: 0.0,
             pitch_rad: 0.0,
             yaw_rad: 0.0,
-            intrinsics: intr,
+            intrinsics,
         };
-        let frame = render(&scene, &camera, &RenderOptions { supersample: 1 });
+        let frame = render(&scene, &at(intr), &RenderOptions { supersample: 1 });
         let colour = ColorImage {
             width: W,
             height: H,
-            rgb: frame.rgb8(),
+            rgb: render(&scene, &at(colour_intr), &RenderOptions { supersample: 1 }).rgb8(),
         };
         let jpeg = alfd::capture::encode_jpeg(&colour.rgb, W as u32, H as u32, 85, None).unwrap();
         let uvc = alfd::capture::jpeg::without_huffman_tables(&jpeg);
@@ -99,6 +104,7 @@ replay = "live"
 width = {W}
 height = {H}
 fps = 30.0
+hfov_deg = {COLOUR_HFOV_DEG}
 [depth]
 source = "recorded"
 dir = {recording:?}
@@ -177,6 +183,15 @@ async fn fly(keep: bool, want: usize) -> (usize, u64) {
             (None, Some(why)) if why.starts_with("writer behind") => continue,
             other => panic!("capture {}: {other:?}", r.seq),
         };
+        // The manifest describes the colour camera that took the image, not the depth camera.
+        let ci = r.intrinsics.as_ref().expect("intrinsics of a saved image");
+        let focal = (W as f64 / 2.0) / (COLOUR_HFOV_DEG / 2.0).to_radians().tan();
+        assert_eq!((ci.width, ci.height), (W as u32, H as u32));
+        assert!(
+            (ci.focal_px - focal).abs() < 1e-6,
+            "{name}: focal {} px",
+            ci.focal_px
+        );
         let bytes = std::fs::read(flight.join(name)).unwrap();
         let decoded = jpeg_decoder::Decoder::new(&bytes[..]).decode();
         assert_eq!(decoded.map(|p| p.len()).ok(), Some(W * H * 3), "{name}");

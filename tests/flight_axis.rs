@@ -34,6 +34,7 @@ fn pipeline() -> Pipeline {
         frame_period_s: 1.0 / 30.0,
         capture_mode: CaptureMode::Frame,
         image_format: None,
+        image_intrinsics: None,
     };
     let home = Geodetic {
         lat_deg: 47.0,

@@ -18,7 +18,8 @@ pub use synthetic::{scene_camera_pose, telemetry_pose};
 /// Where the telemetry pose comes from once the link exists.
 pub type LinkSlot = Arc<OnceLock<LinkHandle>>;
 
-#[cfg(any(feature = "sim", feature = "v4l2"))]
+/// A camera's pinhole intrinsics from its section (`width`, `height`, `hfov_deg`,
+/// `principal_px`): what it renders with, and what the manifest says of its images.
 pub(crate) fn intrinsics(s: &SourceConfig) -> Result<crate::core::Intrinsics, String> {
     crate::core::Intrinsics::from_hfov_deg(s.width, s.height, s.hfov_deg, s.principal_px)
         .map_err(|e| format!("intrinsics: {e}"))
@@ -130,7 +131,6 @@ fn open_v4l2_color(
 mod synthetic {
     use super::{intrinsics, Frames, LinkSlot};
     use crate::config::{Config, SimPose, SourceConfig, SourceKind};
-    use crate::core::Intrinsics;
     use crate::render::SensorModel;
     use crate::scene::Scene;
     use crate::source::synthetic::{CameraPose, MonotonicClock, SyntheticColor, SyntheticDepth};
@@ -235,8 +235,8 @@ mod synthetic {
                 .scene
                 .clone()
                 .ok_or("sim.scene: needed by a synthetic camera")?;
-            let intr = Intrinsics::from_hfov_deg(c.width, c.height, d.hfov_deg, None)
-                .map_err(|e| format!("camera: {e}"))?;
+            // Its own field of view, as the manifest records it.
+            let intr = intrinsics(c).map_err(|e| format!("camera: {e}"))?;
             Ok(Frames::AtInstant(Box::new(SyntheticColor::new(
                 scene.clone(),
                 intr,

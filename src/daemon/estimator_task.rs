@@ -127,6 +127,8 @@ pub struct EstimatorCtx {
     pub link: LinkHandle,
     pub rt: tokio::runtime::Handle,
     pub intrinsics: Intrinsics,
+    /// The saved frames' (the colour camera's), when alfd saves them.
+    pub image_intrinsics: Option<Intrinsics>,
     pub config: Config,
     pub last_seq: u64,
     pub shutdown: Shutdown,
@@ -147,6 +149,7 @@ pub fn estimator_thread(
         frame_period_s: 1.0 / cfg.depth.fps,
         capture_mode: cfg.capture.mode,
         image_format: (cfg.capture.mode == CaptureMode::Frame).then_some(cfg.capture.image_format),
+        image_intrinsics: ctx.image_intrinsics,
     };
     let mut pipeline: Option<Pipeline> = None;
     let state = ctx.link.state();

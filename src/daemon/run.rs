@@ -190,8 +190,15 @@ pub async fn run(
     let tap_forward = tokio::spawn(forward_tap(tap_rx, tlog.clone(), stop.clone()));
 
     let w = spawn_writer(&config, store, devices.frames, tlog.clone(), &stop, &rt);
+    // The saved frames are the colour camera's: their intrinsics go in the manifest.
+    let image_intrinsics = w
+        .saves_frames
+        .then(|| super::devices::intrinsics(&config.camera))
+        .transpose()
+        .map_err(|e| RunError::Config(format!("camera: {e}")))?;
     let e = spawn_estimation(
         &config,
+        image_intrinsics,
         devices.depth,
         devices.tick_hz,
         &link,
@@ -206,7 +213,7 @@ pub async fn run(
     // at most LOCATING_MAX, so a send never finds it full.
     let (located_tx, located_rx) = mpsc::channel(LOCATING_MAX);
     let mut lp = Loop {
-        co: Coordinator::new(&config, last_seq, w.saves_frames.then_some(e.intrinsics)),
+        co: Coordinator::new(&config, last_seq, image_intrinsics),
         out: Outbox {
             link: link.clone(),
             located: located_tx,
@@ -358,7 +365,6 @@ fn spawn_writer(
 
 /// The depth and estimator threads, and what the coordinator reads of them.
 struct Estimation {
-    intrinsics: Intrinsics,
     counters: Arc<Counters>,
     decided: mpsc::Receiver<super::estimator_task::Decided>,
     views: watch::Receiver<Option<EstimatorView>>,
@@ -371,6 +377,7 @@ struct Estimation {
 #[allow(clippy::too_many_arguments)]
 fn spawn_estimation(
     config: &Config,
+    image_intrinsics: Option<Intrinsics>,
     depth: Option<Box<dyn DepthSource>>,
     tick_hz: f64,
     link: &LinkHandle,
@@ -404,6 +411,7 @@ fn spawn_estimation(
         link: link.clone(),
         rt: rt.clone(),
         intrinsics,
+        image_intrinsics,
         config: config.clone(),
         last_seq,
         shutdown: stop.clone(),
@@ -414,7 +422,6 @@ fn spawn_estimation(
         estimator_thread(ctx, depth_rx, view_tx, decided_tx)
     });
     Ok(Estimation {
-        intrinsics,
         counters,
         decided,
         views,

@@ -225,6 +225,7 @@ source = "{camera}"
 width = {w}
 height = {h}
 fps = {fps}
+hfov_deg = {hfov}
 
 [depth]
 source = "synthetic"
@@ -442,13 +443,8 @@ pub async fn run_sim_with(
         MonotonicClock,
     );
     let frames = (config.capture.mode == CaptureMode::Frame).then(|| {
-        let ci = Intrinsics::from_hfov_deg(
-            config.camera.width,
-            config.camera.height,
-            config.depth.hfov_deg,
-            None,
-        )
-        .unwrap_or(intr);
+        // The colour camera's own intrinsics, as the manifest records them.
+        let ci = super::devices::intrinsics(&config.camera).unwrap_or(intr);
         Frames::AtInstant(Box::new(SyntheticColor::new(
             scene.clone(),
             ci,

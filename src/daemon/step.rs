@@ -25,6 +25,10 @@ pub struct StepParams {
     pub capture_mode: CaptureMode,
     /// Set when alfd saves the frames itself (`CaptureMode::Frame`).
     pub image_format: Option<ImageFormat>,
+    /// The saved frames' intrinsics: the colour camera's, which the manifest and
+    /// `transforms.json` carry (the depth camera's may differ: a D435's depth sees 87°,
+    /// its colour 69°).
+    pub image_intrinsics: Option<Intrinsics>,
 }
 
 /// One depth frame (or an opportunity without one: the depth camera stalled)
@@ -136,7 +140,7 @@ impl Pipeline {
             model: self.decision.model(),
             mode: self.params.capture_mode,
             image_format: self.params.image_format,
-            intrinsics: Some(f.intrinsics),
+            intrinsics: self.params.image_intrinsics.as_ref(),
             mount_pitch_rad: self.params.camera_mount_pitch_rad,
         });
         StepOutcome::Capture {
@@ -306,6 +310,8 @@ mod tests {
             frame_period_s: 1.0 / 30.0,
             capture_mode: CaptureMode::Frame,
             image_format: Some(ImageFormat::Jpeg { quality: 90 }),
+            // A colour camera other than the 64×48, 69° depth camera.
+            image_intrinsics: Some(Intrinsics::from_hfov_deg(1280, 960, 60.0, None).unwrap()),
         };
         let home = Geodetic {
             lat_deg: 47.0,
@@ -393,7 +399,14 @@ mod tests {
             );
             assert!((r.position.rel_alt_m - 40.0).abs() < 0.01);
             assert_eq!(r.position.up_m, 40.0);
-            assert!(r.intrinsics.is_some() && r.model == "quality");
+            // The saved image's intrinsics are the colour camera's, not the depth camera's.
+            let ci = r
+                .intrinsics
+                .as_ref()
+                .expect("frame mode records intrinsics");
+            assert_eq!((ci.width, ci.height), (1280, 960));
+            assert!((ci.focal_px - 640.0 / 30f64.to_radians().tan()).abs() < 1e-9);
+            assert_eq!(r.model, "quality");
             let q = r.quality.as_ref().expect("the quality model's decision");
             assert_eq!(q.targets.profile, "lightfield");
             assert!(q.predicted.parallax_px.is_some_and(|px| px <= 2.0 + 1e-9));
