@@ -3,7 +3,7 @@
 //! briefly for the frame of an instant the camera has not delivered yet.
 
 use super::shutdown::Shutdown;
-use crate::source::{ColorImage, FrameAt, FrameRing, FrameSource, RawColor, SourceError, Stamped};
+use crate::source::{FrameAt, FrameRing, FrameSource, RawColor, SourceError, Stamped};
 use std::time::Duration;
 
 /// How long the writer waits for the frame of a capture's instant to arrive.
@@ -58,9 +58,6 @@ pub(crate) fn stream_thread(
 pub(crate) struct WaitingRing(FrameRing);
 
 impl FrameAt for WaitingRing {
-    fn frame_at(&mut self, mono: u64) -> Option<Stamped<ColorImage>> {
-        self.0.frame_at_within(mono, FRAME_WAIT)
-    }
     fn raw_at(&mut self, mono: u64) -> Option<Stamped<RawColor>> {
         self.0.raw_at_within(mono, FRAME_WAIT)
     }
@@ -70,6 +67,7 @@ impl FrameAt for WaitingRing {
 mod tests {
     use super::*;
     use crate::daemon::outbox::IMAGE_BUDGET_NS;
+    use crate::source::ColorImage;
 
     /// The ring still holds the frame of a capture's instant when the writer starts its
     /// image, however late within the budget, at any frame rate.
@@ -115,7 +113,7 @@ mod tests {
         });
         asked.wait();
         let f = ring
-            .frame_at_within(201_000_000, Duration::from_secs(30))
+            .raw_at_within(201_000_000, Duration::from_secs(30))
             .expect("the frame pushed while waiting");
         assert_eq!((f.seq, f.mono_ns), (2, 200_000_000));
         camera.join().unwrap();
@@ -123,7 +121,7 @@ mod tests {
         assert_eq!(reader.frame_at(99_000_000).map(|f| f.seq), Some(1));
         // None within the tolerance and none to come.
         assert!(ring
-            .frame_at_within(150_000_000, Duration::from_millis(1))
+            .raw_at_within(150_000_000, Duration::from_millis(1))
             .is_none());
     }
 }

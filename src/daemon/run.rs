@@ -170,6 +170,13 @@ pub async fn run(
         .clone()
         .ok_or_else(|| RunError::Config("no [mavlink] section: the daemon needs a link".into()))?;
     let (store, last_seq) = open_store(&mut options)?;
+    // The saved frames are the colour camera's: their intrinsics go in the manifest.
+    let image_intrinsics = devices
+        .frames
+        .as_ref()
+        .map(|_| super::devices::intrinsics(&config.camera))
+        .transpose()
+        .map_err(|e| RunError::Config(format!("camera: {e}")))?;
     let (stage, stop) = shutdown::channel();
     let rt = tokio::runtime::Handle::current();
 
@@ -190,12 +197,6 @@ pub async fn run(
     let tap_forward = tokio::spawn(forward_tap(tap_rx, tlog.clone(), stop.clone()));
 
     let w = spawn_writer(&config, store, devices.frames, tlog.clone(), &stop, &rt);
-    // The saved frames are the colour camera's: their intrinsics go in the manifest.
-    let image_intrinsics = w
-        .saves_frames
-        .then(|| super::devices::intrinsics(&config.camera))
-        .transpose()
-        .map_err(|e| RunError::Config(format!("camera: {e}")))?;
     let e = spawn_estimation(
         &config,
         image_intrinsics,
@@ -309,7 +310,6 @@ struct Writing {
     /// The writer's answers: bounded; the writer waits when full.
     written: mpsc::Receiver<Written>,
     space: Arc<Space>,
-    saves_frames: bool,
     frame_thread: Option<std::thread::JoinHandle<()>>,
 }
 
@@ -334,7 +334,6 @@ fn spawn_writer(
             (Some(Box::new(ring) as Box<dyn FrameAt>), Some(h))
         }
     };
-    let saves_frames = frame_at.is_some();
     let space = Arc::new(Space::default());
     let (jobs, jobs_rx) = mpsc::channel::<WriteJob>(WRITE_QUEUE);
     let (written_tx, written) = mpsc::channel::<Written>(WRITTEN_QUEUE);
@@ -358,7 +357,6 @@ fn spawn_writer(
         jobs,
         written,
         space,
-        saves_frames,
         frame_thread,
     }
 }

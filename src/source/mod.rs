@@ -95,15 +95,21 @@ pub trait DepthSource: Send {
 /// delivered, or (synthetic) one rendered at that instant. Called off the
 /// trigger path, by the capture writer.
 pub trait FrameAt: Send {
-    fn frame_at(&mut self, mono_ns: u64) -> Option<Stamped<ColorImage>>;
-
     /// The frame as the camera delivered it, not decoded: the writer stores an MJPEG
     /// frame as it came (`capture::jpeg`) and decodes the others itself.
-    fn raw_at(&mut self, mono_ns: u64) -> Option<Stamped<RawColor>> {
-        self.frame_at(mono_ns).map(|f| Stamped {
-            mono_ns: f.mono_ns,
-            seq: f.seq,
-            data: RawColor::Rgb(f.data),
+    fn raw_at(&mut self, mono_ns: u64) -> Option<Stamped<RawColor>>;
+
+    /// The frame decoded; `None` also when it does not decode.
+    fn frame_at(&mut self, mono_ns: u64) -> Option<Stamped<ColorImage>> {
+        let raw = self.raw_at(mono_ns)?;
+        let data = match raw.data {
+            RawColor::Rgb(c) => c,
+            other => other.decode().ok()?,
+        };
+        Some(Stamped {
+            mono_ns: raw.mono_ns,
+            seq: raw.seq,
+            data,
         })
     }
 }
@@ -143,18 +149,10 @@ impl FrameRing {
         self.inner.pushed.notify_all();
     }
 
-    /// The frame nearest `mono_ns` within the tolerance, waiting up to `wait` for one
-    /// to arrive (the colour frame of a depth instant may come a little later); woken by
-    /// each new frame, not polling.
-    pub fn frame_at_within(
-        &self,
-        mono_ns: u64,
-        wait: std::time::Duration,
-    ) -> Option<Stamped<ColorImage>> {
-        self.raw_at_within(mono_ns, wait).and_then(Self::decoded)
-    }
-
-    /// As [`FrameRing::frame_at_within`], the frame as delivered.
+    /// The frame nearest `mono_ns` within the tolerance, as delivered, waiting up to
+    /// `wait` for one to arrive (the colour frame of a depth instant may come a little
+    /// later); woken by each new frame, not polling. Decoding is left to the caller,
+    /// outside the lock, and only for the frame that is captured.
     pub fn raw_at_within(
         &self,
         mono_ns: u64,
@@ -189,22 +187,9 @@ impl FrameRing {
             .filter(|f| f.mono_ns.abs_diff(mono_ns) <= self.tolerance_ns)
             .cloned()
     }
-
-    /// Decoded outside the lock, only for the frame that is captured.
-    fn decoded(raw: Stamped<RawColor>) -> Option<Stamped<ColorImage>> {
-        let data = raw.data.decode().ok()?;
-        Some(Stamped {
-            mono_ns: raw.mono_ns,
-            seq: raw.seq,
-            data,
-        })
-    }
 }
 
 impl FrameAt for FrameRing {
-    fn frame_at(&mut self, mono_ns: u64) -> Option<Stamped<ColorImage>> {
-        self.frame_at_within(mono_ns, std::time::Duration::ZERO)
-    }
     fn raw_at(&mut self, mono_ns: u64) -> Option<Stamped<RawColor>> {
         self.raw_at_within(mono_ns, std::time::Duration::ZERO)
     }

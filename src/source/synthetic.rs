@@ -4,7 +4,7 @@
 //! is injected, so tests and replays run without waiting.
 
 pub use super::{Clock, MonotonicClock};
-use super::{ColorImage, DepthSource, FrameAt, SourceError, Stamped};
+use super::{ColorImage, DepthSource, FrameAt, RawColor, SourceError, Stamped};
 use crate::core::attitude::{body_to_ned, camera_to_body};
 use crate::core::{DepthImage, Intrinsics};
 use crate::render::{render, render_depth, Camera, Frame, RenderOptions, SensorModel};
@@ -207,7 +207,7 @@ fn lower_this_threads_priority() {
 }
 
 impl<P: PoseAt> FrameAt for SyntheticColor<P> {
-    fn frame_at(&mut self, mono_ns: u64) -> Option<Stamped<ColorImage>> {
+    fn raw_at(&mut self, mono_ns: u64) -> Option<Stamped<RawColor>> {
         let pose = self.pose.pose_at(mono_ns)?;
         let camera = pose.camera(self.intrinsics);
         let frame = match &self.pool {
@@ -218,11 +218,11 @@ impl<P: PoseAt> FrameAt for SyntheticColor<P> {
         Some(Stamped {
             mono_ns,
             seq: self.seq,
-            data: ColorImage {
+            data: RawColor::Rgb(ColorImage {
                 width: frame.width,
                 height: frame.height,
                 rgb: frame.rgb8(),
-            },
+            }),
         })
     }
 }
