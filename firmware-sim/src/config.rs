@@ -42,6 +42,11 @@ pub enum Transport {
     Udp { bind: String },
     /// TCP listening on `bind` (port 0: the system picks), one client at a time.
     Tcp { bind: String },
+    /// An in-memory byte stream in this process, handed out by
+    /// [`crate::SimHandle::take_memory_wire`] (a new one after each link loss): for a
+    /// simulation on a paused clock, where bytes in a kernel pty or socket would be in flight
+    /// while the clock jumps ahead. Not in a config file.
+    Memory,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -102,6 +102,7 @@ enum Control {
 pub struct SimHandle {
     address: String,
     link_path: Option<PathBuf>,
+    memory_wire: std::sync::Mutex<Option<mpsc::Receiver<tokio::io::DuplexStream>>>,
     control: mpsc::Sender<Control>,
     events: broadcast::Sender<SimEvent>,
     shared: Arc<Shared>,
@@ -118,6 +119,15 @@ impl SimHandle {
     /// The pty's stable symlink, if the transport is a pty.
     pub fn link_path(&self) -> Option<&Path> {
         self.link_path.as_deref()
+    }
+
+    /// With [`crate::Transport::Memory`]: the link's ends, one per (re)opening, for the
+    /// one who takes them (the first call); `None` for another transport or a second call.
+    pub fn take_memory_wire(&self) -> Option<mpsc::Receiver<tokio::io::DuplexStream>> {
+        self.memory_wire
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .take()
     }
 
     pub fn subscribe(&self) -> broadcast::Receiver<SimEvent> {
@@ -158,7 +168,7 @@ impl SimHandle {
 /// Start the simulator on the current tokio runtime.
 pub async fn start(config: SimConfig) -> Result<SimHandle, SimError> {
     let (events, _) = broadcast::channel(4096);
-    let io = transport::start(config.transport.clone(), events.clone()).await?;
+    let mut io = transport::start(config.transport.clone(), events.clone()).await?;
     let gcs = match &config.gcs {
         Some(a) => Some(GcsLink::open(a).await.map_err(|source| SimError::Gcs {
             address: a.clone(),
@@ -194,12 +204,14 @@ pub async fn start(config: SimConfig) -> Result<SimHandle, SimError> {
     let (control, control_rx) = mpsc::channel(16);
     let address = io.address.clone();
     let link_path = io.link_path.clone();
+    let memory_wire = std::sync::Mutex::new(io.memory_peers.take());
     let mut engine = Engine::new(config, shared.clone(), events.clone(), boot, truth);
     let links = Links { main: io, gcs };
     let task = tokio::spawn(async move { engine.run(links, control_rx).await });
     Ok(SimHandle {
         address,
         link_path,
+        memory_wire,
         control,
         events,
         shared,
@@ -512,6 +524,7 @@ impl Engine {
                 }
             };
             tokio::select! {
+                biased;
                 _ = tokio::time::sleep_until(wake) => self.tick(&io, mono_ns()).await,
                 m = io.main.inbound.recv() => match m {
                     Some(m) => self.on_inbound(&io, Side::Main, m),
@@ -714,9 +727,7 @@ impl Engine {
                 ..Default::default()
             }),
             2 => MavMessage::SYSTEM_TIME(SYSTEM_TIME_DATA {
-                time_unix_usec: std::time::SystemTime::now()
-                    .duration_since(std::time::UNIX_EPOCH)
-                    .map_or(0, |d| d.as_micros() as u64),
+                time_unix_usec: crate::clock::unix_us(),
                 time_boot_ms: t32,
             }),
             _ => return,
@@ -847,10 +858,7 @@ impl Engine {
         self.send(io, &cmd, now, To::Only(Side::Main));
         self.capture_seq = index;
         let tr = self.shared.truth(mono);
-        let unix_us = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_micros() as u64)
-            .saturating_sub(now.saturating_sub(mono) / 1000);
+        let unix_us = crate::clock::unix_us().saturating_sub(now.saturating_sub(mono) / 1000);
         let feedback = MavMessage::CAMERA_FEEDBACK(CAMERA_FEEDBACK_DATA {
             time_usec: unix_us,
             lat: (tr.lat_deg * 1e7).round() as i32,

@@ -1,4 +1,5 @@
-//! The simulator's side of the wire: one task owns the transport (pty, serial, UDP or TCP),
+//! The simulator's side of the wire: one task owns the transport (pty, serial, UDP, TCP or an
+//! in-memory stream),
 //! writes outgoing frames at their delivery instants, decodes incoming ones, and takes the link
 //! down and up again on command (a new pty behind the same symlink; the same port otherwise).
 //! The optional ground-station side is a plain UDP socket with no faults and no link loss.
@@ -79,7 +80,15 @@ struct Endpoint {
     bound: Option<SocketAddr>,
     listener: Option<TcpListener>,
     _tmpdir: Option<TempDir>,
+    /// The other ends of in-memory streams, one per (re)opening, for whoever plays alfd.
+    memory_peers: Option<mpsc::Sender<tokio::io::DuplexStream>>,
 }
+
+/// Bytes an in-memory stream buffers each way: about a second of telemetry at 921,600 baud.
+const MEMORY_BUFFER: usize = 1 << 17;
+/// In-memory streams opened and not yet taken: a reopening beyond this finds its peer
+/// dropped (nobody took the last ones; the next reopening offers a fresh one).
+const MEMORY_PEERS: usize = 4;
 
 /// A temporary directory removed on drop (for the pty's default symlink).
 struct TempDir(PathBuf);
@@ -111,6 +120,7 @@ impl Endpoint {
             bound: None,
             listener: None,
             _tmpdir: None,
+            memory_peers: None,
         };
         if let Transport::Pty { link } = &ep.transport {
             ep.link = Some(match link {
@@ -136,6 +146,7 @@ impl Endpoint {
             Transport::Serial { path, baud } => format!("serial:{}:{baud}", path.display()),
             Transport::Udp { .. } => format!("udpout:{}", self.bound.expect("bound")),
             Transport::Tcp { .. } => format!("tcpout:{}", self.bound.expect("bound")),
+            Transport::Memory => "memory".into(),
         }
     }
 
@@ -179,6 +190,19 @@ impl Endpoint {
                 self.bound = Some(l.local_addr()?);
                 self.listener = Some(l);
                 Ok(None)
+            }
+            Transport::Memory => {
+                let (ours, theirs) = tokio::io::duplex(MEMORY_BUFFER);
+                if let Some(peers) = &self.memory_peers {
+                    // Full or taken away: that end is dropped, and the link reads end-of-file.
+                    let _ = peers.try_send(theirs);
+                }
+                let (r, w) = tokio::io::split(ours);
+                Ok(Some(Opened {
+                    tx: Tx::Stream(Box::new(w)),
+                    rx: Box::new(r),
+                    _pty: None,
+                }))
             }
         }
     }
@@ -316,6 +340,8 @@ pub(crate) struct LinkIo {
     pub address: String,
     pub link_path: Option<PathBuf>,
     pub task: JoinHandle<()>,
+    /// The in-memory streams' other ends ([`Transport::Memory`]).
+    pub memory_peers: Option<mpsc::Receiver<tokio::io::DuplexStream>>,
 }
 
 /// Open the endpoint and start the task that owns it.
@@ -324,6 +350,11 @@ pub(crate) async fn start(
     events: broadcast::Sender<SimEvent>,
 ) -> io::Result<LinkIo> {
     let mut ep = Endpoint::new(transport)?;
+    let memory_peers = matches!(ep.transport, Transport::Memory).then(|| {
+        let (tx, rx) = mpsc::channel(MEMORY_PEERS);
+        ep.memory_peers = Some(tx);
+        rx
+    });
     let first = ep.prepare().await?;
     let address = ep.address();
     let link_path = ep.link.clone();
@@ -339,6 +370,7 @@ pub(crate) async fn start(
         address,
         link_path,
         task,
+        memory_peers,
     })
 }
 
@@ -357,6 +389,7 @@ async fn run(
             tokio::pin!(connect);
             loop {
                 tokio::select! {
+                    biased;
                     c = &mut connect => break c,
                     o = out.recv() => if o.is_none() { return },
                     c = ctl.recv() => match c {
@@ -375,6 +408,7 @@ async fn run(
         let mut reader_done = false;
         let down = loop {
             tokio::select! {
+                biased;
                 o = out.recv() => {
                     let Some(o) = o else { reader.abort(); return };
                     // Only sleep for a real delay: tokio's timer rounds up to the next
@@ -407,6 +441,7 @@ async fn run(
             let until = Instant::now() + duration;
             loop {
                 tokio::select! {
+                    biased;
                     _ = tokio::time::sleep_until(until) => break,
                     o = out.recv() => if o.is_none() { return },
                 }

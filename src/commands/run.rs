@@ -28,7 +28,7 @@ pub fn run(a: Args) -> Result<ExitCode> {
     let rt = runtime()?;
     let report = rt.block_on(async {
         let slot = LinkSlot::default();
-        let devices = devices::open(&config, slot.clone(), tokio::runtime::Handle::current())
+        let devices = devices::open(&config, slot.clone())
             .map_err(|e| bad(format!("{}: {e}", a.config.display())))?;
         let flight_dir = next_flight_dir(&config.capture.dir);
         tracing::info!("captures go to {}", flight_dir.display());
@@ -41,6 +41,7 @@ pub fn run(a: Args) -> Result<ExitCode> {
             on_link: Some(Box::new(move |l| {
                 let _ = slot.set(l.clone());
             })),
+            memory_wire: None,
         };
         daemon::run::run(config, devices, options, termination())
             .await

@@ -5,7 +5,7 @@ use super::{bad, emit, runtime, termination};
 use alfd::capture::CaptureMode;
 use alfd::config::SimPose;
 use alfd::core::{Model, Profile};
-use alfd::daemon::sim::{run_sim, SimArgs};
+use alfd::daemon::sim::{run_sim, run_sim_on_simulated_time, SimArgs, SimHooks};
 use anyhow::Result;
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -62,6 +62,11 @@ pub struct Args {
     lane_spacing_m: f64,
     #[arg(long)]
     no_progress: bool,
+    /// Fly in real time over a pseudo-terminal, as on the bench (needed by --gcs and
+    /// --pose telemetry). Default: simulated time, as fast as the machine renders, the
+    /// same flight every run.
+    #[arg(long)]
+    real_time: bool,
 }
 
 pub fn run(a: Args) -> Result<ExitCode> {
@@ -122,14 +127,19 @@ pub fn run(a: Args) -> Result<ExitCode> {
         faults: None,
         depth_outages: Vec::new(),
     };
-    let rt = runtime()?;
     let started = std::time::Instant::now();
-    let out = rt
-        .block_on(run_sim(args, termination()))
-        .map_err(|e| match e {
-            alfd::daemon::sim::SimRunError::Setup(m) => bad(m),
-            other => anyhow::Error::from(other),
-        })?;
+    let out = if a.real_time {
+        let rt = runtime()?;
+        let out = rt.block_on(run_sim(args, termination()));
+        rt.shutdown_timeout(std::time::Duration::from_millis(200));
+        out
+    } else {
+        run_sim_on_simulated_time(args, SimHooks::default(), termination())
+    }
+    .map_err(|e| match e {
+        alfd::daemon::sim::SimRunError::Setup(m) => bad(m),
+        other => anyhow::Error::from(other),
+    })?;
     let r = &out.report;
     let mut text = String::new();
     text.push_str(&format!(
@@ -194,6 +204,5 @@ pub fn run(a: Args) -> Result<ExitCode> {
         text.push_str(&format!("error           {e}\n"));
     }
     emit(&text)?;
-    rt.shutdown_timeout(std::time::Duration::from_millis(200));
     Ok(ExitCode::SUCCESS)
 }

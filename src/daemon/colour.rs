@@ -2,23 +2,13 @@
 //! last frames in a ring until the run stops, and the ring as the writer sees it, waiting
 //! briefly for the frame of an instant the camera has not delivered yet.
 
+use super::loops::spawn_thread;
 use super::shutdown::Shutdown;
 use crate::source::{FrameAt, FrameRing, FrameSource, RawColor, SourceError, Stamped};
 use std::time::Duration;
 
 /// How long the writer waits for the frame of a capture's instant to arrive.
 pub const FRAME_WAIT: Duration = Duration::from_millis(200);
-
-/// Starts a named thread (the daemon's threads are named in `top` and in panics).
-pub(crate) fn spawn_thread<T: Send + 'static>(
-    name: &str,
-    f: impl FnOnce() -> T + Send + 'static,
-) -> std::thread::JoinHandle<T> {
-    std::thread::Builder::new()
-        .name(name.into())
-        .spawn(f)
-        .expect("a thread starts")
-}
 
 /// Frames a streaming camera's ring keeps: every frame of the last image budget (a
 /// capture's image may be made up to then), and two more for the tolerance either side.

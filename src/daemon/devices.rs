@@ -26,15 +26,11 @@ pub(crate) fn intrinsics(s: &SourceConfig) -> Result<crate::core::Intrinsics, St
 }
 
 /// Opens what `config` names. Errors name the section and what is wrong.
-pub fn open(
-    config: &Config,
-    slot: LinkSlot,
-    rt: tokio::runtime::Handle,
-) -> Result<Devices, String> {
+pub fn open(config: &Config, slot: LinkSlot) -> Result<Devices, String> {
     if let Some(note) = config.unsupported_by_build() {
         return Err(note);
     }
-    let synthetic = Synthetic::open(config, slot, rt)?;
+    let synthetic = Synthetic::open(config, slot)?;
     let d = &config.depth;
     let depth: Option<Box<dyn DepthSource>> = match &d.source {
         Source::None => None,
@@ -160,11 +156,10 @@ mod synthetic {
         scene: Arc<Scene>,
         mount_pitch_rad: f64,
         slot: LinkSlot,
-        rt: tokio::runtime::Handle,
     ) -> impl FnMut(u64) -> Option<CameraPose> + Send {
         move |t: u64| {
             let link = slot.get()?;
-            let p = rt.block_on(link.pose_at_mono_ns(t)).ok()?;
+            let p = link.pose_at_mono_ns_blocking(t).ok()?;
             let (yaw, pitch, roll) = p.q.to_euler(glam::EulerRot::ZYX);
             Some(scene_camera_pose(
                 &scene,
@@ -183,15 +178,10 @@ mod synthetic {
     pub struct Synthetic {
         scene: Option<Arc<Scene>>,
         slot: LinkSlot,
-        rt: tokio::runtime::Handle,
     }
 
     impl Synthetic {
-        pub fn open(
-            config: &Config,
-            slot: LinkSlot,
-            rt: tokio::runtime::Handle,
-        ) -> Result<Self, String> {
+        pub fn open(config: &Config, slot: LinkSlot) -> Result<Self, String> {
             let scene = match &config.sim_scene {
                 Some(p) if uses(config, SourceKind::Synthetic) => {
                     if config.sim_pose == SimPose::Truth {
@@ -204,7 +194,7 @@ mod synthetic {
                 }
                 _ => None,
             };
-            Ok(Synthetic { scene, slot, rt })
+            Ok(Synthetic { scene, slot })
         }
 
         pub fn depth(&self, d: &SourceConfig) -> Result<Box<dyn DepthSource>, String> {
@@ -225,7 +215,7 @@ mod synthetic {
                 intr,
                 sensor,
                 d.fps,
-                telemetry_pose(scene, d.mount_pitch_rad, self.slot.clone(), self.rt.clone()),
+                telemetry_pose(scene, d.mount_pitch_rad, self.slot.clone()),
                 MonotonicClock,
             )))
         }
@@ -241,7 +231,7 @@ mod synthetic {
                 scene.clone(),
                 intr,
                 1,
-                telemetry_pose(scene, d.mount_pitch_rad, self.slot.clone(), self.rt.clone()),
+                telemetry_pose(scene, d.mount_pitch_rad, self.slot.clone()),
             ))))
         }
     }

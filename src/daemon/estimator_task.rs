@@ -1,5 +1,6 @@
-//! The depth thread (owns the depth source) and the estimator thread (runs the pure
-//! [`Pipeline`] on each frame at its pose). Queues: depth → estimator holds one frame (a
+//! The depth loop (owns the depth source) and the estimator loop (runs the pure
+//! [`Pipeline`] on each frame at its pose), each on its own thread in flight
+//! ([`super::loops`]). Queues: depth → estimator holds one frame (a
 //! frame arriving while the estimator is busy is skipped and counted); the estimator's view
 //! for the coordinator is a latest-value `watch`; its capture decisions go on a bounded
 //! queue the estimator waits on (a decided capture is never dropped).
@@ -38,7 +39,7 @@ pub struct Counters {
     pub bad_frames: AtomicU64,
 }
 
-/// What the estimator thread kept, returned when it ends.
+/// What the estimator loop kept, returned when it ends.
 #[derive(Default)]
 pub struct EstimatorReport {
     pub samples: Vec<FrameSample>,
@@ -57,6 +58,9 @@ pub struct Ticks {
 impl DepthSource for Ticks {
     fn intrinsics(&self) -> Intrinsics {
         self.intrinsics
+    }
+    fn due_ns(&self) -> Option<u64> {
+        (self.next_ns != 0).then_some(self.next_ns)
     }
     fn next_depth(&mut self) -> Result<Option<Stamped<DepthImage>>, SourceError> {
         let now = mono_ns();
@@ -79,15 +83,24 @@ impl DepthSource for Ticks {
     }
 }
 
-pub fn depth_thread(
+/// A monotonic instant as the runtime's timer sees it.
+fn instant_at(mono: u64) -> tokio::time::Instant {
+    let now = mono_ns();
+    tokio::time::Instant::now() + Duration::from_nanos(mono.saturating_sub(now))
+}
+
+pub async fn depth_loop(
     mut src: Box<dyn DepthSource>,
-    tx: std::sync::mpsc::SyncSender<Stamped<DepthImage>>,
+    tx: mpsc::Sender<Stamped<DepthImage>>,
     fail: mpsc::Sender<Decided>,
     shutdown: Shutdown,
     counters: Arc<Counters>,
 ) {
     let mut last_seq: Option<u64> = None;
     while !shutdown.is_stopping() {
+        if let Some(t) = src.due_ns() {
+            tokio::time::sleep_until(instant_at(t)).await;
+        }
         match src.next_depth() {
             Ok(Some(f)) => {
                 counters.depth_frames.fetch_add(1, Ordering::Relaxed);
@@ -100,23 +113,24 @@ pub fn depth_thread(
                 last_seq = Some(f.seq);
                 match tx.try_send(f) {
                     Ok(()) => {}
-                    Err(std::sync::mpsc::TrySendError::Full(_)) => {
+                    Err(mpsc::error::TrySendError::Full(_)) => {
                         counters.skipped_busy.fetch_add(1, Ordering::Relaxed);
                     }
-                    Err(std::sync::mpsc::TrySendError::Disconnected(_)) => return,
+                    Err(mpsc::error::TrySendError::Closed(_)) => return,
                 }
             }
             Ok(None) => return,
+            Err(SourceError::Missed { .. }) => {}
             Err(SourceError::BadFrame { .. }) => {
                 counters.bad_frames.fetch_add(1, Ordering::Relaxed);
             }
             Err(SourceError::Lost(e)) => {
                 counters.bad_frames.fetch_add(1, Ordering::Relaxed);
                 tracing::warn!("depth source lost: {e}; retrying");
-                std::thread::sleep(Duration::from_millis(200));
+                tokio::time::sleep(Duration::from_millis(200)).await;
             }
             Err(SourceError::Fatal(e)) => {
-                let _ = fail.blocking_send(Decided::SourceFailed(e));
+                let _ = fail.send(Decided::SourceFailed(e)).await;
                 return;
             }
         }
@@ -125,7 +139,6 @@ pub fn depth_thread(
 
 pub struct EstimatorCtx {
     pub link: LinkHandle,
-    pub rt: tokio::runtime::Handle,
     pub intrinsics: Intrinsics,
     /// The saved frames' (the colour camera's), when alfd saves them.
     pub image_intrinsics: Option<Intrinsics>,
@@ -136,9 +149,9 @@ pub struct EstimatorCtx {
     pub on_sample: Option<SampleHook>,
 }
 
-pub fn estimator_thread(
+pub async fn estimator_loop(
     mut ctx: EstimatorCtx,
-    rx: std::sync::mpsc::Receiver<Stamped<DepthImage>>,
+    mut rx: mpsc::Receiver<Stamped<DepthImage>>,
     view: watch::Sender<Option<EstimatorView>>,
     decided: mpsc::Sender<Decided>,
 ) -> EstimatorReport {
@@ -161,20 +174,23 @@ pub fn estimator_thread(
     let mut stalled = false;
     loop {
         let wait = if stalled { period } else { stall };
-        let frame = match rx.recv_timeout(wait) {
-            Ok(f) => {
+        let frame = match tokio::time::timeout(wait, rx.recv()).await {
+            Ok(Some(f)) => {
                 stalled = false;
                 Some(f)
             }
-            Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {
+            Err(_) => {
                 stalled = true;
                 None
             }
-            Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => return report,
+            Ok(None) => return report,
         };
         if ctx.shutdown.is_stopping() {
             return report;
         }
+        // The frame's work on this machine's clock (a figure of load): on simulated time
+        // the monotonic clock stands still while the estimator runs.
+        let busy_from = std::time::Instant::now();
         let started = mono_ns();
         if pipeline.is_none() {
             if let Some(home) = state.borrow().as_ref().map(|s| s.home) {
@@ -202,14 +218,8 @@ pub fn estimator_thread(
                 reason: "no position from the autopilot yet".into(),
             },
             Some(p) => {
-                let pose = ctx
-                    .rt
-                    .block_on(ctx.link.pose_at_mono_ns(t))
-                    .map_err(|e| e.to_string());
-                let boot_us = ctx
-                    .rt
-                    .block_on(ctx.link.boot_ns_at_mono_ns(t))
-                    .map(|ns| ns / 1000);
+                let pose = ctx.link.pose_at_mono_ns(t).await.map_err(|e| e.to_string());
+                let boot_us = ctx.link.boot_ns_at_mono_ns(t).await.map(|ns| ns / 1000);
                 p.on_frame(FrameInput {
                     mono_ns: t,
                     depth: frame.as_ref().map(|f| &f.data),
@@ -232,8 +242,9 @@ pub fn estimator_thread(
         let pos_ned_m = match &record {
             Some(r) => Some([r.position.north_m, r.position.east_m, -r.position.up_m]),
             None if estimate.is_some() => ctx
-                .rt
-                .block_on(ctx.link.pose_at_mono_ns(t))
+                .link
+                .pose_at_mono_ns(t)
+                .await
                 .ok()
                 .map(|p| p.pos_ned_m.to_array()),
             None => None,
@@ -248,7 +259,7 @@ pub fn estimator_thread(
                 .map(|o| o.degree),
             suspended: estimate.is_none(),
             captured: record.is_some(),
-            busy_ns: mono_ns().saturating_sub(started),
+            busy_ns: busy_from.elapsed().as_nanos() as u64,
         };
         report.busy_ns += sample.busy_ns;
         if let Some(cb) = ctx.on_sample.as_mut() {
@@ -264,7 +275,7 @@ pub fn estimator_thread(
             }));
         }
         if let Some(r) = record {
-            if decided.blocking_send(Decided::Capture(r)).is_err() {
+            if decided.send(Decided::Capture(r)).await.is_err() {
                 return report;
             }
         }

@@ -9,6 +9,7 @@ pub mod coordinator;
 pub mod devices;
 pub mod estimator_task;
 pub mod latency;
+mod loops;
 pub mod outbox;
 pub mod run;
 mod serve;

@@ -5,16 +5,17 @@
 //! ([`super::shutdown`]), its order written once at the end of [`run`]. Every queue is
 //! bounded; each says its policy where it is made.
 
-use super::colour::{ring_frames, spawn_thread, stream_thread};
+use super::colour::{ring_frames, stream_thread};
 use super::coordinator::{Coordinator, EstimatorView, LOCATING_MAX};
 use super::estimator_task::{
-    depth_thread, estimator_thread, Counters, EstimatorCtx, EstimatorReport, Ticks, DECIDED_QUEUE,
+    depth_loop, estimator_loop, Counters, EstimatorCtx, EstimatorReport, Ticks, DECIDED_QUEUE,
 };
+use super::loops::{spawn_loop, Running};
 use super::outbox::Outbox;
 use super::serve::Loop;
 use super::shutdown::{self, Stage};
 use super::writer::{
-    writer_thread, Space, TlogQueue, WriteJob, WriterCtx, WriterReport, Written, WRITE_QUEUE,
+    writer_loop, Space, TlogQueue, WriteJob, WriterCtx, WriterReport, Written, WRITE_QUEUE,
     WRITTEN_QUEUE,
 };
 use crate::capture::{parse_manifest, CaptureRecord, CaptureStore, DirStore, ExportSummary};
@@ -74,6 +75,9 @@ pub struct RunOptions {
     pub on_sample: Option<SampleHook>,
     /// Called once with the link's handle (a source that follows telemetry).
     pub on_link: Option<LinkHook>,
+    /// Connect through these in-memory streams instead of `mavlink.address` (`alfd sim` on
+    /// simulated time: firmware-sim's `Transport::Memory`).
+    pub memory_wire: Option<mpsc::Receiver<tokio::io::DuplexStream>>,
 }
 
 /// What the estimator made of one depth frame.
@@ -182,6 +186,9 @@ pub async fn run(
 
     // The link first: everything else gets its handle.
     let (mut link_task, link, link_events) = link::new(link_cfg);
+    if let Some(w) = options.memory_wire.take() {
+        link_task.set_memory_wire(w);
+    }
     if let Some(f) = options.on_link.take() {
         f(&link);
     }
@@ -241,6 +248,7 @@ pub async fn run(
             std::future::pending::<std::convert::Infallible>().await
         };
         tokio::select! {
+            biased;
             e = lp.serve(stop.clone(), &options.notifier) => e,
             never = cancel => match never {},
         }
@@ -256,29 +264,21 @@ pub async fn run(
     // Threads blocked in a device read are left behind rather than holding the exit past
     // its budget; normally they end within a frame.
     let (depth_join, est_join) = (e.depth_join, e.est_join);
-    let est_report = tokio::time::timeout(
-        Duration::from_millis(400),
-        tokio::task::spawn_blocking(move || {
-            let _ = depth_join.join();
-            est_join.join().unwrap_or_default()
-        }),
-    )
+    let est_report = tokio::time::timeout(Duration::from_millis(400), async move {
+        depth_join.join().await;
+        est_join.join().await
+    })
     .await
     .ok()
-    .and_then(|r| r.ok())
+    .flatten()
     .unwrap_or_default();
     drop(w.frame_thread);
     lp.hand_over().await;
     lp.close_writer().await;
-    let writer = w.join;
-    let wreport = tokio::task::spawn_blocking(move || writer.join())
-        .await
-        .ok()
-        .and_then(|r| r.ok())
-        .unwrap_or_else(|| WriterReport {
-            errors: vec!["the writer thread did not finish".into()],
-            ..WriterReport::default()
-        });
+    let wreport = w.join.join().await.unwrap_or_else(|| WriterReport {
+        errors: vec!["the writer did not finish".into()],
+        ..WriterReport::default()
+    });
     stage.advance(Stage::Done);
     let _ = tap_forward.await;
     let link_result = tokio::time::timeout(Duration::from_secs(1), link_join).await;
@@ -301,10 +301,10 @@ pub async fn run(
     Ok(report)
 }
 
-/// The writer's side of a run: its thread, its two queues, and the colour frames it
+/// The writer's side of a run: its loop, its two queues, and the colour frames it
 /// reads (a streaming camera's thread and ring, or a source rendering at an instant).
 struct Writing {
-    join: std::thread::JoinHandle<WriterReport>,
+    join: Running<WriterReport>,
     /// Captures to log: bounded, and never waited on (the coordinator keeps a backlog).
     jobs: mpsc::Sender<WriteJob>,
     /// The writer's answers: bounded; the writer waits when full.
@@ -347,11 +347,12 @@ fn spawn_writer(
             "alfd".to_string(),
             format!("{} {}", config.camera.width, config.camera.height),
         ),
-        rt: rt.clone(),
     };
-    let join = spawn_thread("alfd-writer", move || {
-        writer_thread(ctx, jobs_rx, tlog, written_tx)
-    });
+    let join = spawn_loop(
+        "alfd-writer",
+        rt,
+        writer_loop(ctx, jobs_rx, tlog, written_tx),
+    );
     Writing {
         join,
         jobs,
@@ -361,13 +362,13 @@ fn spawn_writer(
     }
 }
 
-/// The depth and estimator threads, and what the coordinator reads of them.
+/// The depth and estimator loops, and what the coordinator reads of them.
 struct Estimation {
     counters: Arc<Counters>,
     decided: mpsc::Receiver<super::estimator_task::Decided>,
     views: watch::Receiver<Option<EstimatorView>>,
-    depth_join: std::thread::JoinHandle<()>,
-    est_join: std::thread::JoinHandle<EstimatorReport>,
+    depth_join: Running<()>,
+    est_join: Running<EstimatorReport>,
 }
 
 /// Depth → estimator holds one frame (a frame arriving while the estimator is busy is
@@ -396,18 +397,19 @@ fn spawn_estimation(
         }),
     };
     let intrinsics = depth.intrinsics();
-    let (depth_tx, depth_rx) = std::sync::mpsc::sync_channel(1);
+    let (depth_tx, depth_rx) = mpsc::channel(1);
     let (decided_tx, decided) = mpsc::channel(DECIDED_QUEUE);
     let (view_tx, views) = watch::channel::<Option<EstimatorView>>(None);
     let depth_join = {
         let (fail, stop, counters) = (decided_tx.clone(), stop.clone(), counters.clone());
-        spawn_thread("alfd-depth", move || {
-            depth_thread(depth, depth_tx, fail, stop, counters)
-        })
+        spawn_loop(
+            "alfd-depth",
+            rt,
+            depth_loop(depth, depth_tx, fail, stop, counters),
+        )
     };
     let ctx = EstimatorCtx {
         link: link.clone(),
-        rt: rt.clone(),
         intrinsics,
         image_intrinsics,
         config: config.clone(),
@@ -416,9 +418,11 @@ fn spawn_estimation(
         keep_samples: options.keep_samples,
         on_sample: options.on_sample.take(),
     };
-    let est_join = spawn_thread("alfd-estimator", move || {
-        estimator_thread(ctx, depth_rx, view_tx, decided_tx)
-    });
+    let est_join = spawn_loop(
+        "alfd-estimator",
+        rt,
+        estimator_loop(ctx, depth_rx, view_tx, decided_tx),
+    );
     Ok(Estimation {
         counters,
         decided,
@@ -460,6 +464,7 @@ async fn forward_tap(
 ) {
     loop {
         tokio::select! {
+            biased;
             f = tap.recv() => match f {
                 Some(f) => tlog.push(f),
                 None => return,

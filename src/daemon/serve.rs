@@ -51,6 +51,7 @@ impl Loop {
             let co = &mut self.co;
             let (link, space, counters) = (&self.link, &self.space, &self.counters);
             let actions = tokio::select! {
+                biased;
                 _ = stop.reached(Stage::Stopping) => return None,
                 d = self.decided.recv() => match d {
                     None => return None,
@@ -98,7 +99,8 @@ impl Loop {
         while !self.out.backlog.is_empty() || self.co.locating() > 0 {
             let co = &mut self.co;
             let actions = tokio::select! {
-                Some(permit) = reserve(self.out.writer.as_ref()) => {
+                biased;
+                Some(permit) = reserve(self.out.writer.as_ref()), if !self.out.backlog.is_empty() => {
                     if let Some(job) = self.out.backlog.pop_front() {
                         permit.send(job);
                     }

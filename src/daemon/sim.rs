@@ -14,6 +14,7 @@ use crate::render::SensorModel;
 use crate::scene::Scene;
 use crate::simreport::{self, CaptureAt, DaemonSample, Summary, TrackSample, TruthPose};
 use crate::source::synthetic::{CameraPose, MonotonicClock, SyntheticColor, SyntheticDepth};
+use crate::source::SourceError;
 use firmware_sim::{SimConfig, Transport, Truth};
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, OnceLock};
@@ -101,32 +102,34 @@ impl<S: crate::source::DepthSource> crate::source::DepthSource for Outages<S> {
     fn intrinsics(&self) -> Intrinsics {
         self.inner.intrinsics()
     }
+    fn due_ns(&self) -> Option<u64> {
+        self.inner.due_ns()
+    }
+
     fn next_depth(
         &mut self,
-    ) -> Result<Option<crate::source::Stamped<crate::core::DepthImage>>, crate::source::SourceError>
-    {
-        loop {
-            let f = self.inner.next_depth()?;
-            let Some(mut f) = f else { return Ok(None) };
-            let t = f.mono_ns.saturating_sub(self.start_ns) as f64 * 1e-9;
-            let w = self
-                .windows
-                .iter()
-                .find(|w| t >= w.start_s && t < w.start_s + w.duration_s);
-            match w.map(|w| w.kind) {
-                None => return Ok(Some(f)),
-                // The frame never comes: the next one is asked for.
-                Some(OutageKind::Stall) => continue,
-                Some(OutageKind::NoValidPixels) => {
-                    let (w, h) = (f.data.width(), f.data.height());
-                    f.data = crate::core::DepthImage::new(
-                        w,
-                        h,
-                        crate::core::DepthData::Metres(vec![f32::NAN; w * h]),
-                    )
-                    .expect("same size as the frame it replaces");
-                    return Ok(Some(f));
-                }
+    ) -> Result<Option<crate::source::Stamped<crate::core::DepthImage>>, SourceError> {
+        let Some(mut f) = self.inner.next_depth()? else {
+            return Ok(None);
+        };
+        let t = f.mono_ns.saturating_sub(self.start_ns) as f64 * 1e-9;
+        let w = self
+            .windows
+            .iter()
+            .find(|w| t >= w.start_s && t < w.start_s + w.duration_s);
+        match w.map(|w| w.kind) {
+            None => Ok(Some(f)),
+            // The frame never comes: the gap in the frame counter says so.
+            Some(OutageKind::Stall) => Err(SourceError::Missed { seq: f.seq }),
+            Some(OutageKind::NoValidPixels) => {
+                let (w, h) = (f.data.width(), f.data.height());
+                f.data = crate::core::DepthImage::new(
+                    w,
+                    h,
+                    crate::core::DepthData::Metres(vec![f32::NAN; w * h]),
+                )
+                .expect("same size as the frame it replaces");
+                Ok(Some(f))
             }
         }
     }
@@ -274,6 +277,37 @@ pub async fn run_sim(
     run_sim_with(args, SimHooks::default(), shutdown).await
 }
 
+/// Where a flight on simulated time starts: 1000 s after the companion's boot, at
+/// 2026-06-21 10:00:00 UTC. Fixed, so two runs log the same instants.
+pub const SIMULATED_START_MONO_NS: u64 = 1_000_000_000_000;
+pub const SIMULATED_START_UNIX_US: u64 = 1_782_036_000_000_000;
+
+/// [`run_sim_with`] on simulated time: a current-thread runtime whose paused clock both
+/// the daemon and firmware-sim read ([`crate::link::simulate_on_this_thread`]), moved by
+/// the runtime only when every task waits. The daemon's loops run as its tasks and talk
+/// to the simulator through memory, so renders and estimates take no simulated time, the
+/// flight runs as fast as they allow, and the same arguments give the same flight.
+pub fn run_sim_on_simulated_time(
+    args: SimArgs,
+    hooks: SimHooks,
+    shutdown: impl std::future::Future<Output = ()> + Send,
+) -> Result<SimOutcome, SimRunError> {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .start_paused(true)
+        .build()
+        .map_err(|e| SimRunError::Setup(format!("runtime: {e}")))?;
+    rt.block_on(async {
+        let _alfd =
+            crate::link::simulate_on_this_thread(SIMULATED_START_MONO_NS, SIMULATED_START_UNIX_US);
+        let _sim = firmware_sim::clock::simulate_on_this_thread(
+            SIMULATED_START_MONO_NS,
+            SIMULATED_START_UNIX_US,
+        );
+        run_sim_with(args, hooks, shutdown).await
+    })
+}
+
 /// [`run_sim`] with hooks for tests.
 pub async fn run_sim_with(
     args: SimArgs,
@@ -324,9 +358,26 @@ pub async fn run_sim_with(
     // The simulated autopilot: a line north over the scene's survey, or lanes
     // east of it flown back and forth (one strip leaves a reconstruction's
     // lateral positions to trade against roll; a second one fixes them).
+    // On simulated time the daemon and the simulator share one runtime thread and talk
+    // through memory (`link::wire`); in real time, through a pty as on the bench.
+    let simulated = crate::link::simulated();
+    if simulated && args.pose == SimPose::Telemetry {
+        return Err(setup(
+            "sim.pose = \"telemetry\" renders at the link's answer, which a flight on simulated time cannot wait for: use --real-time".into(),
+        ));
+    }
+    if simulated && args.gcs.is_some() {
+        return Err(setup(
+            "--gcs: a ground station watches in real time; add --real-time".into(),
+        ));
+    }
     let mut sc = SimConfig {
-        transport: Transport::Pty {
-            link: Some(flight_dir.join("ttyFC")),
+        transport: if simulated {
+            Transport::Memory
+        } else {
+            Transport::Pty {
+                link: Some(flight_dir.join("ttyFC")),
+            }
         },
         gcs: args.gcs.clone(),
         ..SimConfig::default()
@@ -370,6 +421,7 @@ pub async fn run_sim_with(
             .map_err(|e| setup(format!("firmware-sim: {e}")))?,
     );
     let sim_start_ns = mono_ns();
+    let memory_wire = sim.take_memory_wire();
     if let Some(l) = config.link.as_mut() {
         l.address = sim.address().to_string();
     }
@@ -403,7 +455,6 @@ pub async fn run_sim_with(
 
     let mount = config.depth.mount_pitch_rad;
     let link_slot: Arc<OnceLock<LinkHandle>> = Arc::new(OnceLock::new());
-    let rt = tokio::runtime::Handle::current();
     let pose_source = |scene: Arc<Scene>| -> Box<dyn FnMut(u64) -> Option<CameraPose> + Send> {
         match args.pose {
             SimPose::Truth => {
@@ -422,7 +473,6 @@ pub async fn run_sim_with(
                 scene,
                 mount,
                 link_slot.clone(),
-                rt.clone(),
             )),
         }
     };
@@ -445,12 +495,13 @@ pub async fn run_sim_with(
     let frames = (config.capture.mode == CaptureMode::Frame).then(|| {
         // The colour camera's own intrinsics, as the manifest records them.
         let ci = super::devices::intrinsics(&config.camera).unwrap_or(intr);
-        Frames::AtInstant(Box::new(SyntheticColor::new(
-            scene.clone(),
-            ci,
-            1,
-            pose_source(scene.clone()),
-        )))
+        let colour = SyntheticColor::new(scene.clone(), ci, 1, pose_source(scene.clone()));
+        // On simulated time nothing renders beside it: all cores.
+        Frames::AtInstant(Box::new(if simulated {
+            colour.on_all_cores()
+        } else {
+            colour
+        }))
     });
 
     // Progress along the line, from the frames the daemon processes.
@@ -510,6 +561,7 @@ pub async fn run_sim_with(
         keep_samples: true,
         notifier: Notifier::disabled(),
         on_sample,
+        memory_wire,
         on_link: Some({
             let slot = link_slot.clone();
             Box::new(move |l: &LinkHandle| {
@@ -535,6 +587,7 @@ pub async fn run_sim_with(
         options,
         async move {
             tokio::select! {
+                biased;
                 _ = done => {}
                 _ = shutdown => {}
             }

@@ -1,4 +1,4 @@
-//! The writer thread: owns the capture store (images, manifest, exports) and
+//! The writer loop (its own thread in flight, [`super::loops`]): owns the capture store (images, manifest, exports) and
 //! `telemetry.tlog`. Captures come first and always become a manifest line: one whose frame
 //! cannot be had before its deadline is logged without its image, with the reason. Telemetry
 //! has its own queue that drops its oldest frame (counted) when full, so a telemetry burst
@@ -116,12 +116,11 @@ pub struct WriterCtx {
     pub frames: Option<Box<dyn FrameAt>>,
     pub space: Arc<Space>,
     pub make_model: (String, String),
-    pub rt: tokio::runtime::Handle,
 }
 
 /// Runs until the capture queue is closed (the coordinator is done), then flushes the
 /// telemetry and writes the exports from the manifest as stored.
-pub fn writer_thread(
+pub async fn writer_loop(
     mut ctx: WriterCtx,
     mut jobs: mpsc::Receiver<WriteJob>,
     tlog: Arc<TlogQueue>,
@@ -154,12 +153,11 @@ pub fn writer_thread(
                     continue;
                 }
                 let ready = &tlog.ready;
-                match ctx.rt.block_on(async {
-                    tokio::select! {
-                        j = jobs.recv() => Some(j),
-                        _ = ready.notified() => None,
-                    }
-                }) {
+                match tokio::select! {
+                    biased;
+                    j = jobs.recv() => Some(j),
+                    _ = ready.notified() => None,
+                } {
                     Some(None) => break,
                     Some(Some(j)) => Some(j),
                     None => None,
@@ -226,11 +224,12 @@ pub fn writer_thread(
             answered_ns: 0,
         };
         if written
-            .blocking_send(Written {
+            .send(Written {
                 record,
                 result,
                 stamps,
             })
+            .await
             .is_err()
         {
             tracing::warn!("capture {seq}: the coordinator is gone");

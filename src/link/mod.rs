@@ -7,8 +7,9 @@ pub mod clock;
 pub mod config;
 mod state;
 mod task;
+mod wire;
 
-pub use clock::{mono_ns, unix_us_at};
+pub use clock::{mono_ns, simulate_on_this_thread, simulated, unix_us_at, SimulatedTime};
 pub use config::{LinkConfig, LinkConfigError, RawLinkConfig};
 pub use state::{Airborne, AnchorSource, PoseQueryError, Reaction, Tracker};
 pub use task::{new, Link, LinkError, TapFrame};
@@ -216,6 +217,14 @@ impl LinkHandle {
         rx.await.unwrap_or(Err(PoseQueryError::NotSynced))
     }
 
+    /// [`Self::pose_at_mono_ns`] from a thread that blocks (a synthetic source's, which
+    /// renders at the telemetry's pose): it parks the thread until the link answers. Not
+    /// on simulated time, where every loop is a task of the one runtime thread and the
+    /// link could never answer (`alfd sim` refuses that combination).
+    pub fn pose_at_mono_ns_blocking(&self, mono_ns: u64) -> Result<Pose, PoseQueryError> {
+        park_on(self.pose_at_mono_ns(mono_ns))
+    }
+
     /// The autopilot's boot time (ns) at a monotonic instant, by the current TIMESYNC estimate.
     pub async fn boot_ns_at_mono_ns(&self, mono_ns: u64) -> Option<u64> {
         let (tx, rx) = oneshot::channel();
@@ -224,5 +233,26 @@ impl LinkHandle {
             .await
             .ok()?;
         rx.await.ok().flatten()
+    }
+}
+
+/// Polls `fut` to its end on this thread, parking it between wake-ups. tokio's `block_on`
+/// refuses to run inside another (a source is called from its loop's future); the link's
+/// channels need no runtime to be waited on.
+fn park_on<F: std::future::Future>(fut: F) -> F::Output {
+    struct Unpark(std::thread::Thread);
+    impl std::task::Wake for Unpark {
+        fn wake(self: std::sync::Arc<Self>) {
+            self.0.unpark();
+        }
+    }
+    let waker = std::task::Waker::from(std::sync::Arc::new(Unpark(std::thread::current())));
+    let mut cx = std::task::Context::from_waker(&waker);
+    let mut fut = std::pin::pin!(fut);
+    loop {
+        if let std::task::Poll::Ready(v) = fut.as_mut().poll(&mut cx) {
+            return v;
+        }
+        std::thread::park();
     }
 }

@@ -8,14 +8,14 @@
 use super::clock::mono_ns;
 use super::config::LinkConfig;
 use super::state::{Reaction, Tracker};
+use super::wire::{MemoryWire, Wire};
 use super::{Command, LinkEvent, LinkHandle, LinkHealth, SendError, VehicleState};
 use crate::core::allowlist;
 use crate::core::backoff::reconnect_delay_ms;
 use mavlink::dialects::ardupilotmega::*;
 use mavlink::error::MessageReadError;
 use mavlink::{
-    AsyncConnection, AsyncMavConnection, MAVLinkMessageRaw, MavHeader, MavlinkVersion, Message,
-    SigningConfig,
+    AsyncMavConnection, MAVLinkMessageRaw, MavHeader, MavlinkVersion, Message, SigningConfig,
 };
 use std::future::Future;
 use std::sync::Arc;
@@ -23,7 +23,7 @@ use std::time::Duration;
 use tokio::sync::{mpsc, watch};
 use tokio::time::{sleep_until, timeout, Instant};
 
-type Conn = Arc<AsyncConnection<MavMessage>>;
+type Conn = Arc<Wire>;
 
 const OPEN_TIMEOUT: Duration = Duration::from_secs(2);
 const WRITE_TIMEOUT: Duration = Duration::from_secs(1);
@@ -73,6 +73,8 @@ pub struct Link {
     tap: Option<mpsc::Sender<TapFrame>>,
     tap_dropped: u64,
     origin_tries: u32,
+    /// In-memory streams to connect through instead of `cfg.address` ([`Link::set_memory_wire`]).
+    memory: Option<mpsc::Receiver<tokio::io::DuplexStream>>,
 }
 
 /// Build the link: the task to run, the handle for the rest of the daemon, and its events.
@@ -96,6 +98,7 @@ pub fn new(cfg: LinkConfig) -> (Link, LinkHandle, mpsc::Receiver<LinkEvent>) {
         tap: None,
         tap_dropped: 0,
         origin_tries: 0,
+        memory: None,
     };
     (
         link,
@@ -173,40 +176,70 @@ impl Link {
         self.tap = Some(tap);
     }
 
+    /// Connect through firmware-sim's in-memory streams (one per opening of its link)
+    /// instead of `mavlink.address`: `alfd sim` on simulated time ([`super::wire`]).
+    pub fn set_memory_wire(&mut self, streams: mpsc::Receiver<tokio::io::DuplexStream>) {
+        self.memory = Some(streams);
+    }
+
+    /// The next connection: rust-mavlink's for the address, or the next in-memory stream.
+    async fn connect(&mut self) -> Option<Wire> {
+        let version = if self.cfg.mavlink_version == 1 {
+            MavlinkVersion::V1
+        } else {
+            MavlinkVersion::V2
+        };
+        if let Some(streams) = self.memory.as_mut() {
+            let s = timeout(OPEN_TIMEOUT, streams.recv()).await.ok()??;
+            return Some(Wire::Memory(MemoryWire::new(s, version)));
+        }
+        let address = &self.cfg.address;
+        let mut conn = timeout(OPEN_TIMEOUT, mavlink::connect_async::<MavMessage>(address))
+            .await
+            .ok()?
+            .ok()?;
+        conn.set_allow_recv_any_version(true);
+        conn.set_protocol_version(version);
+        if let Some(s) = &self.cfg.signing {
+            // Fresh per connection: replay state (last timestamp per stream) starts
+            // over at each reconnection; see docs/link.md.
+            conn.setup_signing(Some(SigningConfig::new(
+                s.key,
+                s.link_id,
+                true,
+                s.accept_unsigned,
+            )));
+        }
+        Some(Wire::Mav(conn))
+    }
+
     /// Run until `shutdown` resolves.
     pub async fn run(mut self, shutdown: impl Future<Output = ()>) -> Result<(), LinkError> {
-        if let Err(e) = mavlink::ConnectionAddress::parse_address(&self.cfg.address) {
-            return Err(LinkError::Address {
-                address: self.cfg.address.clone(),
-                reason: e.to_string(),
-            });
+        let address_error = |reason: String| LinkError::Address {
+            address: self.cfg.address.clone(),
+            reason,
+        };
+        if self.memory.is_some() {
+            if self.cfg.signing.is_some() {
+                return Err(address_error(
+                    "the simulator's in-memory wire does not sign; leave [mavlink.signing] out"
+                        .into(),
+                ));
+            }
+        } else if let Err(e) = mavlink::ConnectionAddress::parse_address(&self.cfg.address) {
+            return Err(address_error(e.to_string()));
         }
         tokio::pin!(shutdown);
         let mut attempt = 0u32;
         loop {
             let connected = tokio::select! {
-                r = timeout(OPEN_TIMEOUT, mavlink::connect_async::<MavMessage>(&self.cfg.address)) => r,
+                biased;
                 _ = &mut shutdown => return Ok(()),
+                c = self.connect() => c,
             };
             match connected {
-                Ok(Ok(mut conn)) => {
+                Some(conn) => {
                     attempt = 0;
-                    conn.set_allow_recv_any_version(true);
-                    conn.set_protocol_version(if self.cfg.mavlink_version == 1 {
-                        MavlinkVersion::V1
-                    } else {
-                        MavlinkVersion::V2
-                    });
-                    if let Some(s) = &self.cfg.signing {
-                        // Fresh per connection: replay state (last timestamp per stream) starts
-                        // over at each reconnection; see docs/link.md.
-                        conn.setup_signing(Some(SigningConfig::new(
-                            s.key,
-                            s.link_id,
-                            true,
-                            s.accept_unsigned,
-                        )));
-                    }
                     self.tracker.health.connects += 1;
                     self.tracker.health.connected = true;
                     if self.serve_connection(Arc::new(conn), &mut shutdown).await {
@@ -215,7 +248,7 @@ impl Link {
                     self.tracker.health.connected = false;
                     self.publish_health();
                 }
-                Ok(Err(_)) | Err(_) => {
+                None => {
                     self.tracker.health.connect_failures += 1;
                     let initial = self.cfg.reconnect_initial.as_millis() as u64;
                     let max = self.cfg.reconnect_max.as_millis() as u64;
@@ -242,6 +275,7 @@ impl Link {
     ) -> bool {
         loop {
             tokio::select! {
+                biased;
                 _ = sleep_until(deadline) => return false,
                 _ = shutdown.as_mut() => return true,
                 Some(c) = self.commands.recv() => self.serve(c, None).await,
@@ -277,6 +311,7 @@ impl Link {
         let mut next_sync = Instant::now();
         loop {
             tokio::select! {
+                biased;
                 _ = shutdown.as_mut() => {
                     self.publish_health();
                     return true;

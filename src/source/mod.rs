@@ -43,6 +43,10 @@ pub enum SourceError {
     /// One frame could not be decoded: skip it.
     #[error("bad frame {seq}: {reason}")]
     BadFrame { seq: u64, reason: String },
+    /// The frame due never came (a stalled camera): skip it; the gap it leaves in the
+    /// frame counter counts it.
+    #[error("frame {seq} never came")]
+    Missed { seq: u64 },
     /// Configuration or setup that will not work: fatal.
     #[error("{0}")]
     Fatal(String),
@@ -89,6 +93,13 @@ pub trait DepthSource: Send {
     fn intrinsics(&self) -> Intrinsics;
     /// The next depth frame, blocking until it arrives; `None` at the end.
     fn next_depth(&mut self) -> Result<Option<Stamped<DepthImage>>, SourceError>;
+    /// For a source that paces itself on its [`Clock`]: the instant its next frame is due,
+    /// when known. The daemon's depth loop waits for it on the runtime's timer first, so on
+    /// simulated time the clock moves there instead of a thread sleeping; `next_depth` then
+    /// returns at once. `None` (a device, or the first frame): `next_depth` decides.
+    fn due_ns(&self) -> Option<u64> {
+        None
+    }
 }
 
 /// The colour frame for a capture decided at an instant: the nearest a camera

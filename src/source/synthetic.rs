@@ -128,6 +128,10 @@ impl<P: PoseAt, C: Clock> DepthSource for SyntheticDepth<P, C> {
         self.intrinsics
     }
 
+    fn due_ns(&self) -> Option<u64> {
+        self.next_ns
+    }
+
     fn next_depth(&mut self) -> Result<Option<Stamped<DepthImage>>, SourceError> {
         let t = *self.next_ns.get_or_insert_with(|| self.clock.now_ns());
         self.clock.wait_until(t);
@@ -196,6 +200,15 @@ impl<P: PoseAt> SyntheticColor<P> {
                 .build()
                 .ok(),
         }
+    }
+}
+
+impl<P> SyntheticColor<P> {
+    /// Renders on the caller's thread and rayon's shared pool: where no depth stream
+    /// renders meanwhile (a flight on simulated time).
+    pub fn on_all_cores(mut self) -> Self {
+        self.pool = None;
+        self
     }
 }
 
