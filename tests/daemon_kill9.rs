@@ -173,7 +173,9 @@ fn killed_run(bin: &Path, scene: &Path, kill_s: f64) -> RunStats {
     let stderr = std::fs::File::create(tmp.path().join("stderr.txt")).unwrap();
     let spawned = Instant::now();
     let mut child = Command::new(bin)
-        .args(["sim", "--scene"])
+        // In real time, over a pty: the kill must land in a flight under way (on simulated
+        // time the short flight is over within a second or two).
+        .args(["sim", "--real-time", "--scene"])
         .arg(scene)
         .args(["--width", "160", "--height", "120", "--no-progress"])
         .args(["--log-level", "warn", "--length-m", "70", "--out"])

@@ -146,7 +146,7 @@ fn a_ground_station_sees_the_captures_as_they_happen() {
 
     let mut alfd = Reaped(
         Command::new(env!("CARGO_BIN_EXE_alfd"))
-            .args(["--log-level", "warn", "sim", "--gcs"])
+            .args(["--log-level", "warn", "sim", "--real-time", "--gcs"])
             .arg(format!("udpout:127.0.0.1:{port}"))
             .arg("--scene")
             .arg(repo.join("tests/data/tower.toml"))

@@ -101,7 +101,9 @@ pub async fn depth_loop(
         if let Some(t) = src.due_ns() {
             tokio::time::sleep_until(instant_at(t)).await;
         }
-        match src.next_depth() {
+        let next = src.next_depth();
+        crate::link::clock::settle().await;
+        match next {
             Ok(Some(f)) => {
                 counters.depth_frames.fetch_add(1, Ordering::Relaxed);
                 // The source's own counter: a gap is a frame the camera (or the renderer

@@ -179,7 +179,9 @@ pub async fn writer_loop(
             let missing = if !pace.admit(started, deadline_ns) {
                 Some("writer behind: no time to make the image before its deadline".to_string())
             } else {
-                match ctx.frames.as_mut().and_then(|f| f.raw_at(record.mono_ns)) {
+                let frame = ctx.frames.as_mut().and_then(|f| f.raw_at(record.mono_ns));
+                crate::link::clock::settle().await;
+                match frame {
                     None => Some("no colour frame at the capture's instant".to_string()),
                     Some(fr) => {
                         let gps =
@@ -207,6 +209,7 @@ pub async fn writer_loop(
         let store = st.store_mut();
         let r = log_capture(store, &record, image.as_deref());
         space(store);
+        crate::link::clock::settle().await;
         let finished = mono_ns();
         if image.is_some() && r.is_ok() {
             pace.made(finished.saturating_sub(started), finished);

@@ -41,6 +41,30 @@ impl Drop for SimulatedTime {
     }
 }
 
+thread_local! {
+    static OWED_NS: std::cell::Cell<u64> = const { std::cell::Cell::new(0) };
+}
+
+/// A simulated device's own duration (a slow store, a slow camera in a test). In real
+/// time the calling thread sleeps it. On simulated time it is owed: the loop that called
+/// the device waits it on the runtime's timer ([`settle`]) while the other tasks run, as
+/// the other threads would in flight.
+pub fn spend(d: std::time::Duration) {
+    if simulated() {
+        OWED_NS.set(OWED_NS.get().saturating_add(d.as_nanos() as u64));
+    } else {
+        std::thread::sleep(d);
+    }
+}
+
+/// Waits what the devices called since the last settle [`spend`]t (nothing in real time).
+pub async fn settle() {
+    let owed = OWED_NS.replace(0);
+    if owed > 0 {
+        tokio::time::sleep(std::time::Duration::from_nanos(owed)).await;
+    }
+}
+
 /// Whether this thread runs on simulated time.
 pub fn simulated() -> bool {
     SIMULATED.get().is_some()
