@@ -250,7 +250,7 @@ mod synthetic {
     pub struct Synthetic;
 
     impl Synthetic {
-        pub fn open(_: &Config, _: LinkSlot, _: tokio::runtime::Handle) -> Result<Self, String> {
+        pub fn open(_: &Config, _: LinkSlot) -> Result<Self, String> {
             Ok(Synthetic)
         }
 
