@@ -11,6 +11,7 @@ pub mod estimator_task;
 pub mod latency;
 mod loops;
 pub mod outbox;
+pub mod report;
 pub mod run;
 mod serve;
 pub mod shutdown;

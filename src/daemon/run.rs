@@ -1,9 +1,11 @@
 //! The daemon wired together, and only that: the link first (its handle goes to whoever
-//! needs it), then the writer thread ([`super::writer`]), the depth and estimator threads
-//! ([`super::estimator_task`]), and the coordinator's loop ([`super::serve`]), which performs
-//! what the pure [`Coordinator`] decides through [`super::outbox`]. One shutdown
+//! needs it), then the writer loop ([`super::writer`]), the depth and estimator loops
+//! ([`super::estimator_task`]), each a thread in flight and a task on simulated time
+//! ([`super::loops`]), and the coordinator's loop ([`super::serve`]), which performs what
+//! the pure [`Coordinator`] decides through [`super::outbox`]. One shutdown
 //! ([`super::shutdown`]), its order written once at the end of [`run`]. Every queue is
-//! bounded; each says its policy where it is made.
+//! bounded; each says its policy where it is made. What a run gives back is in
+//! [`super::report`].
 
 use super::colour::{ring_frames, stream_thread};
 use super::coordinator::{Coordinator, EstimatorView, LOCATING_MAX};
@@ -12,22 +14,22 @@ use super::estimator_task::{
 };
 use super::loops::{spawn_loop, Running};
 use super::outbox::Outbox;
+pub use super::report::{FrameSample, RunError, RunReport};
 use super::serve::Loop;
 use super::shutdown::{self, Stage};
 use super::writer::{
     writer_loop, Space, TlogQueue, WriteJob, WriterCtx, WriterReport, Written, WRITE_QUEUE,
     WRITTEN_QUEUE,
 };
-use crate::capture::{parse_manifest, CaptureRecord, CaptureStore, DirStore, ExportSummary};
+use crate::capture::{parse_manifest, CaptureStore, DirStore};
 use crate::config::Config;
 use crate::core::Intrinsics;
-use crate::link::{self, mono_ns, LinkHandle, LinkHealth, TapFrame};
+use crate::link::{self, mono_ns, LinkHandle, TapFrame};
 use crate::notify::Notifier;
 use crate::source::{DepthSource, FrameAt, FrameSource};
 use std::collections::VecDeque;
 use std::future::Future;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::Duration;
 use tokio::sync::{mpsc, watch};
@@ -78,80 +80,6 @@ pub struct RunOptions {
     /// Connect through these in-memory streams instead of `mavlink.address` (`alfd sim` on
     /// simulated time: firmware-sim's `Transport::Memory`).
     pub memory_wire: Option<mpsc::Receiver<tokio::io::DuplexStream>>,
-}
-
-/// What the estimator made of one depth frame.
-#[derive(Debug, Clone, PartialEq)]
-pub struct FrameSample {
-    pub mono_ns: u64,
-    /// Local NED of the pose used, when there was one.
-    pub pos_ned_m: Option<[f64; 3]>,
-    pub spacing_m: Option<f64>,
-    pub occlusion_degree: Option<f64>,
-    pub suspended: bool,
-    pub captured: bool,
-    /// Wall time the estimator spent on the frame (ns).
-    pub busy_ns: u64,
-}
-
-/// Counters of a run, and what it logged.
-#[derive(Debug, Default)]
-pub struct RunReport {
-    pub flight_dir: PathBuf,
-    /// The manifest read back at the end (what a reconstruction tool will see).
-    pub records: Vec<CaptureRecord>,
-    pub samples: Vec<FrameSample>,
-    pub depth_frames: u64,
-    /// Frames dropped because the estimator was still busy with an earlier one.
-    pub frames_skipped_busy: u64,
-    /// Frames the source never delivered (gaps in its frame counter).
-    pub frames_missed_by_source: u64,
-    pub frames_bad: u64,
-    pub frames_suspended: u64,
-    pub captures_decided: u64,
-    pub capture_errors: Vec<String>,
-    /// Captures whose colour frame could not be had (logged without an image).
-    pub frames_missing: u64,
-    /// Images stored as an MJPEG camera encoded them (`capture.keep_camera_jpeg`).
-    pub images_as_received: u64,
-    pub camera_commands: u64,
-    pub camera_command_failures: u64,
-    pub trigger_distances_sent: u64,
-    pub trigger_distances_acked: u64,
-    pub autopilot_triggers: u64,
-    pub tlog_frames: u64,
-    pub exports: Option<ExportSummary>,
-    pub link: LinkHealth,
-    /// The first STATUSTEXTs sent (at most 1000), and how many more.
-    pub statustexts: Vec<String>,
-    pub statustexts_dropped: u64,
-    /// Capture errors beyond the first 1000 kept in `capture_errors`.
-    pub capture_errors_dropped: u64,
-    pub estimator_busy_ns: u64,
-    /// Captures ground stations commanded (each image of an interval capture counted).
-    pub command_captures: u64,
-    /// Captures logged without their image or not logged, each said by a failed
-    /// CAMERA_IMAGE_CAPTURED or a STATUSTEXT.
-    pub captures_failed: u64,
-    /// Telemetry frames the tlog's queue dropped (oldest first) while the writer was behind.
-    pub tlog_frames_dropped: u64,
-    /// From the shutdown (or the end of the depth source) to everything logged, said and
-    /// stopped (monotonic ns).
-    pub shutdown_ns: u64,
-    /// From each capture's instant to its CAMERA_IMAGE_CAPTURED, by phase.
-    pub latency: Option<super::latency::LatencySummary>,
-}
-
-#[derive(Debug, thiserror::Error)]
-pub enum RunError {
-    #[error("capture directory {0}: {1}")]
-    Store(PathBuf, String),
-    #[error("depth source: {0}")]
-    Source(String),
-    #[error(transparent)]
-    Link(#[from] link::LinkError),
-    #[error("config: {0}")]
-    Config(String),
 }
 
 /// The first free `flight-NNN` under `root`.
@@ -293,7 +221,7 @@ pub async fn run(
         flight_dir: options.flight_dir.clone(),
         tlog_frames_dropped: tlog.dropped(),
         shutdown_ns: mono_ns().saturating_sub(stop_began_ns),
-        ..report(lp.co, est_report, &e.counters, &link, wreport)
+        ..super::report::report(lp.co, est_report, &e.counters, &link, wreport)
     };
     if let Some(l) = &report.latency {
         tracing::info!("{l}");
@@ -471,45 +399,5 @@ async fn forward_tap(
             },
             _ = stop.reached(Stage::Done) => return,
         }
-    }
-}
-
-/// The run's counters from the parts that kept them.
-fn report(
-    co: Coordinator,
-    est: EstimatorReport,
-    counters: &Counters,
-    link: &LinkHandle,
-    w: WriterReport,
-) -> RunReport {
-    let c = co.report.clone();
-    RunReport {
-        records: w.records,
-        capture_errors: w.errors,
-        capture_errors_dropped: w.errors_dropped,
-        frames_missing: w.frames_missing,
-        images_as_received: w.images_as_received,
-        tlog_frames: w.tlog_frames,
-        exports: w.exports,
-        samples: est.samples,
-        depth_frames: counters.depth_frames.load(Ordering::Relaxed),
-        frames_skipped_busy: counters.skipped_busy.load(Ordering::Relaxed),
-        frames_missed_by_source: counters.source_gaps.load(Ordering::Relaxed),
-        frames_bad: counters.bad_frames.load(Ordering::Relaxed),
-        frames_suspended: est.frames_suspended,
-        captures_decided: c.captures_decided,
-        camera_commands: c.camera_commands,
-        camera_command_failures: c.camera_command_failures,
-        trigger_distances_sent: co.setter().sent,
-        trigger_distances_acked: co.setter().acked,
-        autopilot_triggers: c.autopilot_triggers,
-        link: link.health().borrow().clone(),
-        statustexts: c.statustexts,
-        statustexts_dropped: c.statustexts_dropped,
-        estimator_busy_ns: est.busy_ns,
-        command_captures: c.command_captures,
-        captures_failed: c.captures_failed,
-        latency: c.latency.summary(),
-        ..RunReport::default()
     }
 }

@@ -1,0 +1,124 @@
+//! What a run gives back: each frame's sample, the counters of every part, the manifest as
+//! stored, and the errors that end a run.
+
+use super::coordinator::Coordinator;
+use super::estimator_task::{Counters, EstimatorReport};
+use super::writer::WriterReport;
+use crate::capture::{CaptureRecord, ExportSummary};
+use crate::link::{self, LinkHandle, LinkHealth};
+use std::path::PathBuf;
+use std::sync::atomic::Ordering;
+
+/// What the estimator made of one depth frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameSample {
+    pub mono_ns: u64,
+    /// Local NED of the pose used, when there was one.
+    pub pos_ned_m: Option<[f64; 3]>,
+    pub spacing_m: Option<f64>,
+    pub occlusion_degree: Option<f64>,
+    pub suspended: bool,
+    pub captured: bool,
+    /// Wall time the estimator spent on the frame (ns).
+    pub busy_ns: u64,
+}
+
+/// Counters of a run, and what it logged.
+#[derive(Debug, Default)]
+pub struct RunReport {
+    pub flight_dir: PathBuf,
+    /// The manifest read back at the end (what a reconstruction tool will see).
+    pub records: Vec<CaptureRecord>,
+    pub samples: Vec<FrameSample>,
+    pub depth_frames: u64,
+    /// Frames dropped because the estimator was still busy with an earlier one.
+    pub frames_skipped_busy: u64,
+    /// Frames the source never delivered (gaps in its frame counter).
+    pub frames_missed_by_source: u64,
+    pub frames_bad: u64,
+    pub frames_suspended: u64,
+    pub captures_decided: u64,
+    pub capture_errors: Vec<String>,
+    /// Captures whose colour frame could not be had (logged without an image).
+    pub frames_missing: u64,
+    /// Images stored as an MJPEG camera encoded them (`capture.keep_camera_jpeg`).
+    pub images_as_received: u64,
+    pub camera_commands: u64,
+    pub camera_command_failures: u64,
+    pub trigger_distances_sent: u64,
+    pub trigger_distances_acked: u64,
+    pub autopilot_triggers: u64,
+    pub tlog_frames: u64,
+    pub exports: Option<ExportSummary>,
+    pub link: LinkHealth,
+    /// The first STATUSTEXTs sent (at most 1000), and how many more.
+    pub statustexts: Vec<String>,
+    pub statustexts_dropped: u64,
+    /// Capture errors beyond the first 1000 kept in `capture_errors`.
+    pub capture_errors_dropped: u64,
+    pub estimator_busy_ns: u64,
+    /// Captures ground stations commanded (each image of an interval capture counted).
+    pub command_captures: u64,
+    /// Captures logged without their image or not logged, each said by a failed
+    /// CAMERA_IMAGE_CAPTURED or a STATUSTEXT.
+    pub captures_failed: u64,
+    /// Telemetry frames the tlog's queue dropped (oldest first) while the writer was behind.
+    pub tlog_frames_dropped: u64,
+    /// From the shutdown (or the end of the depth source) to everything logged, said and
+    /// stopped (monotonic ns).
+    pub shutdown_ns: u64,
+    /// From each capture's instant to its CAMERA_IMAGE_CAPTURED, by phase.
+    pub latency: Option<super::latency::LatencySummary>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    #[error("capture directory {0}: {1}")]
+    Store(PathBuf, String),
+    #[error("depth source: {0}")]
+    Source(String),
+    #[error(transparent)]
+    Link(#[from] link::LinkError),
+    #[error("config: {0}")]
+    Config(String),
+}
+
+/// The run's counters from the parts that kept them.
+pub(crate) fn report(
+    co: Coordinator,
+    est: EstimatorReport,
+    counters: &Counters,
+    link: &LinkHandle,
+    w: WriterReport,
+) -> RunReport {
+    let c = co.report.clone();
+    RunReport {
+        records: w.records,
+        capture_errors: w.errors,
+        capture_errors_dropped: w.errors_dropped,
+        frames_missing: w.frames_missing,
+        images_as_received: w.images_as_received,
+        tlog_frames: w.tlog_frames,
+        exports: w.exports,
+        samples: est.samples,
+        depth_frames: counters.depth_frames.load(Ordering::Relaxed),
+        frames_skipped_busy: counters.skipped_busy.load(Ordering::Relaxed),
+        frames_missed_by_source: counters.source_gaps.load(Ordering::Relaxed),
+        frames_bad: counters.bad_frames.load(Ordering::Relaxed),
+        frames_suspended: est.frames_suspended,
+        captures_decided: c.captures_decided,
+        camera_commands: c.camera_commands,
+        camera_command_failures: c.camera_command_failures,
+        trigger_distances_sent: co.setter().sent,
+        trigger_distances_acked: co.setter().acked,
+        autopilot_triggers: c.autopilot_triggers,
+        link: link.health().borrow().clone(),
+        statustexts: c.statustexts,
+        statustexts_dropped: c.statustexts_dropped,
+        estimator_busy_ns: est.busy_ns,
+        command_captures: c.command_captures,
+        captures_failed: c.captures_failed,
+        latency: c.latency.summary(),
+        ..RunReport::default()
+    }
+}
