@@ -43,6 +43,8 @@ pub struct RunReport {
     pub frames_missing: u64,
     /// Images stored as an MJPEG camera encoded them (`capture.keep_camera_jpeg`).
     pub images_as_received: u64,
+    /// Images whose size was not [camera]'s width and height: logged without intrinsics.
+    pub frames_off_size: u64,
     pub camera_commands: u64,
     pub camera_command_failures: u64,
     pub trigger_distances_sent: u64,
@@ -98,6 +100,7 @@ pub(crate) fn report(
         capture_errors_dropped: w.errors_dropped,
         frames_missing: w.frames_missing,
         images_as_received: w.images_as_received,
+        frames_off_size: w.frames_off_size,
         tlog_frames: w.tlog_frames,
         exports: w.exports,
         samples: est.samples,

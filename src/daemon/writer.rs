@@ -94,6 +94,8 @@ pub struct WriterReport {
     pub frames_missing: u64,
     /// Images stored as the camera encoded them (MJPEG), not decoded and re-encoded.
     pub images_as_received: u64,
+    /// Images whose size was not [camera]'s, logged without intrinsics.
+    pub frames_off_size: u64,
     pub tlog_frames: u64,
     pub exports: Option<ExportSummary>,
 }
@@ -187,9 +189,10 @@ pub async fn writer_loop(
                         let gps =
                             ExifGps::from_record(&record, &ctx.make_model.0, &ctx.make_model.1);
                         match image_of(&fr, ctx.format, ctx.keep_camera_jpeg, &gps) {
-                            Ok((bytes, as_received)) => {
+                            Ok((bytes, as_received, size)) => {
                                 image = Some(bytes);
                                 report.images_as_received += u64::from(as_received);
+                                check_size(&mut record, size, &mut report);
                                 None
                             }
                             Err(e) => Some(e),
@@ -297,19 +300,42 @@ const TYPICAL_HALF_LIFE_NS: u64 = 4_000_000_000;
 /// MJPEG frame is kept as it came (with the EXIF segment) when the format is JPEG and
 /// `keep_camera_jpeg`; one whose structure does not hold up is decoded and re-encoded
 /// instead, so it is either whole or refused with the decoder's reason.
+/// The intrinsics a record carries are [camera]'s: a frame of another size (a camera
+/// delivering another mode than configured) is not described by them. The image is kept
+/// and its intrinsics left out (an export then has none to guess from), and the first
+/// such frame says so, naming the settings to fix.
+fn check_size(record: &mut CaptureRecord, (w, h): (u32, u32), report: &mut WriterReport) {
+    let Some(i) = record.intrinsics else { return };
+    if (i.width, i.height) == (w, h) {
+        return;
+    }
+    record.intrinsics = None;
+    report.frames_off_size += 1;
+    if report.frames_off_size == 1 {
+        let e = format!(
+            "capture {}: the camera's frame is {w}x{h}, [camera] width and height say {}x{}: \
+             its intrinsics are left out of the manifest (every such capture's)",
+            record.seq, i.width, i.height
+        );
+        tracing::warn!("{e}");
+        report.error(e);
+    }
+}
+
+/// The image to store, whether it is the camera's JPEG as received, and its size.
 fn image_of(
     frame: &Stamped<RawColor>,
     format: ImageFormat,
     keep_camera_jpeg: bool,
     gps: &ExifGps,
-) -> Result<(Vec<u8>, bool), String> {
+) -> Result<(Vec<u8>, bool, (u32, u32)), String> {
     let mut kept_reason = None;
     if let (RawColor::Mjpeg(jpeg), ImageFormat::Jpeg { .. }, true) =
         (&frame.data, format, keep_camera_jpeg)
     {
         // An invalid position leaves the image untagged rather than lost.
         match jpeg::as_received(jpeg, |w, h| exif_app1(gps, w, h).ok()) {
-            Ok(f) => return Ok((f.bytes, true)),
+            Ok(f) => return Ok((f.bytes, true, (f.width, f.height))),
             Err(e) => kept_reason = Some(e),
         }
     }
@@ -325,15 +351,10 @@ fn image_of(
             &decoded
         }
     };
-    encode_capture(
-        &rgb.rgb,
-        rgb.width as u32,
-        rgb.height as u32,
-        format,
-        Some(gps),
-    )
-    .map(|(bytes, _)| (bytes, false))
-    .map_err(|e| format!("encoding: {e}"))
+    let size = (rgb.width as u32, rgb.height as u32);
+    encode_capture(&rgb.rgb, size.0, size.1, format, Some(gps))
+        .map(|(bytes, _)| (bytes, false, size))
+        .map_err(|e| format!("encoding: {e}"))
 }
 
 fn halved(ns: u64, elapsed_ns: u64, half_life_ns: u64) -> u64 {
@@ -538,7 +559,8 @@ mod image_tests {
         let (camera, _) = encode_capture(&c.rgb, 40, 24, ImageFormat::Jpeg { quality: 50 }, None)
             .expect("encodes");
         let frame = stamped(RawColor::Mjpeg(camera.clone()));
-        let (kept, as_received) = image_of(&frame, JPEG, true, &gps()).unwrap();
+        let (kept, as_received, size) = image_of(&frame, JPEG, true, &gps()).unwrap();
+        assert_eq!(size, (40, 24));
         assert!(as_received);
         let sos = camera.windows(2).position(|w| w == [0xFF, 0xDA]).unwrap();
         assert!(
@@ -549,19 +571,21 @@ mod image_tests {
         assert!(crate::capture::find_exif_app1(&kept).is_some());
 
         // Re-encoded at quality 90: other bytes, same size, still tagged.
-        let (again, as_received) = image_of(&frame, JPEG, false, &gps()).unwrap();
+        let (again, as_received, size) = image_of(&frame, JPEG, false, &gps()).unwrap();
+        assert_eq!(size, (40, 24));
         assert!(!as_received);
         assert!(!again.ends_with(&camera[sos..]));
         let d = mjpeg_to_rgb(&again).unwrap();
         assert_eq!((d.width, d.height), (40, 24));
         assert!(crate::capture::find_exif_app1(&again).is_some());
 
-        let (png, as_received) = image_of(&frame, ImageFormat::Png, true, &gps()).unwrap();
+        let (png, as_received, _) = image_of(&frame, ImageFormat::Png, true, &gps()).unwrap();
         assert!(!as_received);
         assert_eq!(&png[1..4], b"PNG");
 
-        let (from_rgb, as_received) =
+        let (from_rgb, as_received, size) =
             image_of(&stamped(RawColor::Rgb(c)), JPEG, true, &gps()).unwrap();
+        assert_eq!(size, (40, 24));
         assert!(!as_received);
         assert_eq!(mjpeg_to_rgb(&from_rgb).unwrap().width, 40);
     }
@@ -574,7 +598,7 @@ mod image_tests {
         let (camera, _) = encode_capture(&c.rgb, 40, 24, JPEG, None).unwrap();
         let cut = stamped(RawColor::Mjpeg(camera[..camera.len() - 40].to_vec()));
         match image_of(&cut, JPEG, true, &gps()) {
-            Ok((bytes, as_received)) => {
+            Ok((bytes, as_received, _)) => {
                 assert!(!as_received);
                 assert!(jpeg::as_received(&bytes, |_, _| None).is_ok(), "whole now");
             }
@@ -593,5 +617,31 @@ mod image_tests {
         );
         let e = image_of(&garbage, JPEG, false, &gps()).unwrap_err();
         assert!(e.starts_with("colour frame 7 does not decode:"), "{e}");
+    }
+
+    /// A frame of another size than [camera]'s keeps its image and loses the intrinsics
+    /// that do not describe it; the first such capture says so, the others are counted.
+    #[test]
+    fn a_frame_of_another_size_loses_its_intrinsics_and_says_so() {
+        let mut report = WriterReport::default();
+        let mut r = crate::capture::record::tests::sample(3);
+        let i = r.intrinsics.expect("the sample has intrinsics");
+        check_size(&mut r, (i.width, i.height), &mut report);
+        assert_eq!(r.intrinsics, Some(i));
+        assert!(report.errors.is_empty());
+        check_size(&mut r, (i.width * 2, i.height * 2), &mut report);
+        assert_eq!(r.intrinsics, None);
+        let mut r4 = crate::capture::record::tests::sample(4);
+        check_size(&mut r4, (1, 1), &mut report);
+        assert_eq!(r4.intrinsics, None);
+        assert_eq!(report.frames_off_size, 2);
+        assert_eq!(report.errors.len(), 1, "{:?}", report.errors);
+        let e = &report.errors[0];
+        assert!(
+            e.starts_with("capture 3:")
+                && e.contains(&format!("{}x{}", i.width * 2, i.height * 2))
+                && e.contains("[camera] width and height"),
+            "{e}"
+        );
     }
 }
