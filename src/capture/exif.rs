@@ -495,22 +495,11 @@ pub fn parse_exif_gps(app1: &[u8]) -> Result<ParsedExif, ExifError> {
 
 /// The payload of the first APP1 `Exif` segment of a JPEG (header included).
 pub fn find_exif_app1(jpeg: &[u8]) -> Option<&[u8]> {
-    let mut at = 2;
-    if jpeg.get(..2)? != [0xFF, 0xD8] {
-        return None;
-    }
-    loop {
-        let (marker, len) = (*jpeg.get(at + 1)?, jpeg.get(at + 2..at + 4)?);
-        if jpeg[at] != 0xFF || marker == 0xDA {
-            return None;
-        }
-        let len = u16::from_be_bytes([len[0], len[1]]) as usize;
-        let payload = jpeg.get(at + 4..at + 2 + len)?;
-        if marker == 0xE1 && payload.starts_with(EXIF_HEADER) {
-            return Some(payload);
-        }
-        at += 2 + len;
-    }
+    super::jpeg::segments(jpeg)
+        .map_while(Result::ok)
+        .take_while(|s| s.marker != 0xDA)
+        .find(|s| s.marker == 0xE1 && s.payload().starts_with(EXIF_HEADER))
+        .map(|s| s.payload())
 }
 
 #[derive(Debug, thiserror::Error)]

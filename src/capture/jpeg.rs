@@ -46,6 +46,111 @@ const APP0: u8 = 0xE0;
 const APP1: u8 = 0xE1;
 const EXIF_HEADER: &[u8] = b"Exif\0\0";
 
+/// One marker segment before the scan: where it starts, its marker, and the whole
+/// segment (marker, length and payload).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct Segment<'a> {
+    pub at: usize,
+    pub marker: u8,
+    pub bytes: &'a [u8],
+}
+
+impl<'a> Segment<'a> {
+    /// The segment's payload, after its marker and length.
+    pub fn payload(&self) -> &'a [u8] {
+        &self.bytes[4..]
+    }
+}
+
+/// The marker segments of a JPEG from after its start-of-image marker up to and
+/// including the start-of-scan segment, after which the entropy-coded data begins and
+/// the walk ends. Fill bytes and stand-alone markers are stepped over; an end of image
+/// before the scan, a byte that is not a marker and a segment running past the end are
+/// errors, after which the walk ends. The one walk of marker segments in alfd (the
+/// kept frame, the EXIF reader, the decoder's table check, the test cameras).
+pub(crate) fn segments(jpeg: &[u8]) -> Segments<'_> {
+    Segments {
+        jpeg,
+        at: if jpeg.starts_with(&[0xFF, SOI]) { 2 } else { 0 },
+        started: jpeg.starts_with(&[0xFF, SOI]),
+        done: false,
+    }
+}
+
+pub(crate) struct Segments<'a> {
+    jpeg: &'a [u8],
+    at: usize,
+    started: bool,
+    done: bool,
+}
+
+impl Segments<'_> {
+    /// Where the walk stands: after the last segment given (the scan's data, once the
+    /// start-of-scan segment has been given).
+    pub fn position(&self) -> usize {
+        self.at
+    }
+}
+
+impl<'a> Iterator for Segments<'a> {
+    type Item = Result<Segment<'a>, JpegError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.done {
+            return None;
+        }
+        let fail = |this: &mut Self, e| {
+            this.done = true;
+            Some(Err(e))
+        };
+        if !self.started {
+            return fail(self, JpegError::NoStart);
+        }
+        let jpeg = self.jpeg;
+        loop {
+            // Fill bytes (0xFF) may precede a marker.
+            while jpeg.get(self.at) == Some(&0xFF) && jpeg.get(self.at + 1) == Some(&0xFF) {
+                self.at += 1;
+            }
+            let at = self.at;
+            let (Some(&0xFF), Some(&marker)) = (jpeg.get(at), jpeg.get(at + 1)) else {
+                let e = if at >= jpeg.len() {
+                    JpegError::NoScan
+                } else {
+                    JpegError::NotMarker(at)
+                };
+                return fail(self, e);
+            };
+            match marker {
+                EOI => return fail(self, JpegError::NoScan),
+                // Stand-alone markers carry no length.
+                0x01 | 0xD0..=0xD7 => {
+                    self.at += 2;
+                    continue;
+                }
+                _ => {}
+            }
+            let Some(len) = jpeg
+                .get(at + 2..at + 4)
+                .map(|l| u16::from_be_bytes([l[0], l[1]]) as usize)
+            else {
+                return fail(self, JpegError::Truncated(at));
+            };
+            let end = at + 2 + len;
+            if len < 2 || end > jpeg.len() {
+                return fail(self, JpegError::Truncated(at));
+            }
+            self.at = end;
+            self.done = marker == SOS;
+            return Some(Ok(Segment {
+                at,
+                marker,
+                bytes: &jpeg[at..end],
+            }));
+        }
+    }
+}
+
 /// The frame with `exif(width, height)` (an EXIF payload, `Exif\0\0` + TIFF, as
 /// [`super::exif_app1`] makes it; `None`: no segment) as its EXIF segment, after any
 /// leading APP0 (JFIF, AVI1) and in place of an EXIF segment the camera wrote. Bytes
@@ -54,53 +159,20 @@ pub fn as_received(
     jpeg: &[u8],
     exif: impl FnOnce(u32, u32) -> Option<Vec<u8>>,
 ) -> Result<AsReceived, JpegError> {
-    if jpeg.len() < 2 || jpeg[..2] != [0xFF, SOI] {
-        return Err(JpegError::NoStart);
-    }
     // Segments before the scan, as (marker, whole segment).
-    let mut segments: Vec<(u8, &[u8])> = Vec::new();
+    let mut kept: Vec<(u8, &[u8])> = Vec::new();
     let mut size = None;
     let mut huffman_coded = false;
     let mut has_tables = false;
-    let mut at = 2;
-    let scan_at = loop {
-        // Fill bytes (0xFF) may precede a marker.
-        while jpeg.get(at) == Some(&0xFF) && jpeg.get(at + 1) == Some(&0xFF) {
-            at += 1;
-        }
-        let (Some(&0xFF), Some(&marker)) = (jpeg.get(at), jpeg.get(at + 1)) else {
-            return Err(if at >= jpeg.len() {
-                JpegError::NoScan
-            } else {
-                JpegError::NotMarker(at)
-            });
-        };
+    let mut scan_at = None;
+    for segment in segments(jpeg) {
+        let Segment { at, marker, bytes } = segment?;
         match marker {
-            EOI => return Err(JpegError::NoScan),
-            // Stand-alone markers carry no length.
-            0x01 | 0xD0..=0xD7 => {
-                at += 2;
-                continue;
-            }
-            _ => {}
-        }
-        let len = jpeg
-            .get(at + 2..at + 4)
-            .map(|l| u16::from_be_bytes([l[0], l[1]]) as usize)
-            .ok_or(JpegError::Truncated(at))?;
-        let end = at + 2 + len;
-        if len < 2 || end > jpeg.len() {
-            return Err(JpegError::Truncated(at));
-        }
-        if marker == SOS {
-            break at;
-        }
-        let segment = &jpeg[at..end];
-        match marker {
+            SOS => scan_at = Some(at),
             DHT => has_tables = true,
             // Frame headers: SOF0..SOF15 less DHT (C4), JPG (C8) and DAC (CC).
             0xC0..=0xCF if marker != 0xC8 && marker != 0xCC => {
-                let p = &segment[4..];
+                let p = &bytes[4..];
                 if p.len() < 6 {
                     return Err(JpegError::BadFrameHeader {
                         at,
@@ -122,9 +194,12 @@ pub fn as_received(
             }
             _ => {}
         }
-        segments.push((marker, segment));
-        at = end;
-    };
+        if marker != SOS {
+            kept.push((marker, bytes));
+        }
+    }
+    let scan_at = scan_at.ok_or(JpegError::NoScan)?;
+    let mut segments = kept;
     let (width, height) = size.ok_or(JpegError::NoFrameHeader)?;
     // The entropy-coded data stuffs every 0xFF with a zero byte or a restart marker, so
     // the first FF D9 after the scan header ends the image.
@@ -249,16 +324,18 @@ fn standard_tables_segment() -> Vec<u8> {
 /// are walked up to the scan; the scan and what follows are kept as they are.
 pub fn without_huffman_tables(jpeg: &[u8]) -> Vec<u8> {
     let mut out = jpeg[..2.min(jpeg.len())].to_vec();
-    let mut at = 2;
-    while at + 4 <= jpeg.len() && jpeg[at] == 0xFF && jpeg[at + 1] != SOS {
-        let end =
-            (at + 2 + u16::from_be_bytes([jpeg[at + 2], jpeg[at + 3]]) as usize).min(jpeg.len());
-        if jpeg[at + 1] != DHT {
-            out.extend_from_slice(&jpeg[at..end]);
+    let mut walk = segments(jpeg);
+    let mut rest = 2.min(jpeg.len());
+    while let Some(Ok(segment)) = walk.next() {
+        if segment.marker == SOS {
+            break;
         }
-        at = end;
+        if segment.marker != DHT {
+            out.extend_from_slice(segment.bytes);
+        }
+        rest = walk.position();
     }
-    out.extend_from_slice(&jpeg[at.min(jpeg.len())..]);
+    out.extend_from_slice(&jpeg[rest..]);
     out
 }
 
@@ -403,6 +480,44 @@ mod tests {
         assert_eq!(
             as_received(&frame, |_, _| Some(vec![0; 70_000])),
             Err(JpegError::ExifTooLong(70_000))
+        );
+    }
+
+    /// The walk gives each segment up to and including the scan's, steps over fill bytes
+    /// and stand-alone markers, and ends after its first error.
+    #[test]
+    fn the_segment_walk_stops_at_the_scan_or_its_first_error() {
+        let frame = camera_frame(16, 8);
+        let markers: Vec<u8> = segments(&frame).map(|s| s.unwrap().marker).collect();
+        assert_eq!(markers.last(), Some(&SOS));
+        assert!(
+            markers.contains(&DHT) && markers.contains(&0xC0),
+            "{markers:X?}"
+        );
+        let mut walk = segments(&frame);
+        let sos = walk.by_ref().map(Result::unwrap).last().unwrap();
+        assert_eq!(walk.position(), sos.at + sos.bytes.len());
+
+        // Fill bytes and a stand-alone marker before the first segment.
+        let padded = [&frame[..2], &[0xFF, 0xFF, 0xFF, 0x01], &frame[2..]].concat();
+        let again: Vec<u8> = segments(&padded).map(|s| s.unwrap().marker).collect();
+        assert_eq!(again, markers);
+
+        fn errors(b: &[u8]) -> Vec<Result<Segment<'_>, JpegError>> {
+            segments(b).collect()
+        }
+        assert_eq!(errors(b"no"), vec![Err(JpegError::NoStart)]);
+        assert_eq!(
+            errors(&[0xFF, SOI, 0x12]),
+            vec![Err(JpegError::NotMarker(2))]
+        );
+        assert_eq!(
+            errors(&[0xFF, SOI, 0xFF, EOI]),
+            vec![Err(JpegError::NoScan)]
+        );
+        assert_eq!(
+            errors(&[0xFF, SOI, 0xFF, APP0, 0x00, 0x10, 1]),
+            vec![Err(JpegError::Truncated(2))]
         );
     }
 }

@@ -138,12 +138,11 @@ pub fn mjpeg_to_rgb(buf: &[u8]) -> Result<ColorImage, DecodeError> {
 /// Whether a DHT segment comes before the first scan (walking the marker
 /// segments from SOI; a malformed walk answers true and leaves it to the decoder).
 fn has_huffman_tables(jpeg: &[u8]) -> bool {
-    let mut i = 2;
-    while i + 4 <= jpeg.len() && jpeg[i] == 0xFF {
-        match jpeg[i + 1] {
-            0xC4 => return true,
-            0xDA => return false,
-            _ => i += 2 + u16::from_be_bytes([jpeg[i + 2], jpeg[i + 3]]) as usize,
+    for segment in crate::capture::jpeg::segments(jpeg) {
+        match segment.map(|s| s.marker) {
+            Ok(0xC4) | Err(_) => return true,
+            Ok(0xDA) => return false,
+            Ok(_) => {}
         }
     }
     true
