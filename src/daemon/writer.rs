@@ -189,10 +189,10 @@ pub async fn writer_loop(
                         let gps =
                             ExifGps::from_record(&record, &ctx.make_model.0, &ctx.make_model.1);
                         match image_of(&fr, ctx.format, ctx.keep_camera_jpeg, &gps) {
-                            Ok((bytes, as_received, size)) => {
-                                image = Some(bytes);
-                                report.images_as_received += u64::from(as_received);
-                                check_size(&mut record, size, &mut report);
+                            Ok(made) => {
+                                image = Some(made.bytes);
+                                report.images_as_received += u64::from(made.as_received);
+                                check_size(&mut record, made.size, &mut report);
                                 None
                             }
                             Err(e) => Some(e),
@@ -322,20 +322,35 @@ fn check_size(record: &mut CaptureRecord, (w, h): (u32, u32), report: &mut Write
     }
 }
 
-/// The image to store, whether it is the camera's JPEG as received, and its size.
+/// An image to store.
+#[derive(Debug)]
+struct Made {
+    bytes: Vec<u8>,
+    /// The camera's JPEG as received, not re-encoded.
+    as_received: bool,
+    /// Width and height, px.
+    size: (u32, u32),
+}
+
 fn image_of(
     frame: &Stamped<RawColor>,
     format: ImageFormat,
     keep_camera_jpeg: bool,
     gps: &ExifGps,
-) -> Result<(Vec<u8>, bool, (u32, u32)), String> {
+) -> Result<Made, String> {
     let mut kept_reason = None;
     if let (RawColor::Mjpeg(jpeg), ImageFormat::Jpeg { .. }, true) =
         (&frame.data, format, keep_camera_jpeg)
     {
         // An invalid position leaves the image untagged rather than lost.
         match jpeg::as_received(jpeg, |w, h| exif_app1(gps, w, h).ok()) {
-            Ok(f) => return Ok((f.bytes, true, (f.width, f.height))),
+            Ok(f) => {
+                return Ok(Made {
+                    bytes: f.bytes,
+                    as_received: true,
+                    size: (f.width, f.height),
+                })
+            }
             Err(e) => kept_reason = Some(e),
         }
     }
@@ -353,7 +368,11 @@ fn image_of(
     };
     let size = (rgb.width as u32, rgb.height as u32);
     encode_capture(&rgb.rgb, size.0, size.1, format, Some(gps))
-        .map(|(bytes, _)| (bytes, false, size))
+        .map(|(bytes, _)| Made {
+            bytes,
+            as_received: false,
+            size,
+        })
         .map_err(|e| format!("encoding: {e}"))
 }
 
@@ -559,7 +578,11 @@ mod image_tests {
         let (camera, _) = encode_capture(&c.rgb, 40, 24, ImageFormat::Jpeg { quality: 50 }, None)
             .expect("encodes");
         let frame = stamped(RawColor::Mjpeg(camera.clone()));
-        let (kept, as_received, size) = image_of(&frame, JPEG, true, &gps()).unwrap();
+        let Made {
+            bytes: kept,
+            as_received,
+            size,
+        } = image_of(&frame, JPEG, true, &gps()).unwrap();
         assert_eq!(size, (40, 24));
         assert!(as_received);
         let sos = camera.windows(2).position(|w| w == [0xFF, 0xDA]).unwrap();
@@ -571,7 +594,11 @@ mod image_tests {
         assert!(crate::capture::find_exif_app1(&kept).is_some());
 
         // Re-encoded at quality 90: other bytes, same size, still tagged.
-        let (again, as_received, size) = image_of(&frame, JPEG, false, &gps()).unwrap();
+        let Made {
+            bytes: again,
+            as_received,
+            size,
+        } = image_of(&frame, JPEG, false, &gps()).unwrap();
         assert_eq!(size, (40, 24));
         assert!(!as_received);
         assert!(!again.ends_with(&camera[sos..]));
@@ -579,12 +606,19 @@ mod image_tests {
         assert_eq!((d.width, d.height), (40, 24));
         assert!(crate::capture::find_exif_app1(&again).is_some());
 
-        let (png, as_received, _) = image_of(&frame, ImageFormat::Png, true, &gps()).unwrap();
+        let Made {
+            bytes: png,
+            as_received,
+            ..
+        } = image_of(&frame, ImageFormat::Png, true, &gps()).unwrap();
         assert!(!as_received);
         assert_eq!(&png[1..4], b"PNG");
 
-        let (from_rgb, as_received, size) =
-            image_of(&stamped(RawColor::Rgb(c)), JPEG, true, &gps()).unwrap();
+        let Made {
+            bytes: from_rgb,
+            as_received,
+            size,
+        } = image_of(&stamped(RawColor::Rgb(c)), JPEG, true, &gps()).unwrap();
         assert_eq!(size, (40, 24));
         assert!(!as_received);
         assert_eq!(mjpeg_to_rgb(&from_rgb).unwrap().width, 40);
@@ -598,7 +632,9 @@ mod image_tests {
         let (camera, _) = encode_capture(&c.rgb, 40, 24, JPEG, None).unwrap();
         let cut = stamped(RawColor::Mjpeg(camera[..camera.len() - 40].to_vec()));
         match image_of(&cut, JPEG, true, &gps()) {
-            Ok((bytes, as_received, _)) => {
+            Ok(Made {
+                bytes, as_received, ..
+            }) => {
                 assert!(!as_received);
                 assert!(jpeg::as_received(&bytes, |_, _| None).is_ok(), "whole now");
             }
