@@ -282,9 +282,9 @@ pub async fn run_sim(
 pub const SIMULATED_START_MONO_NS: u64 = 1_000_000_000_000;
 pub const SIMULATED_START_UNIX_US: u64 = 1_782_036_000_000_000;
 
-/// [`run_sim_with`] on simulated time: a current-thread runtime whose paused clock both
-/// the daemon and firmware-sim read ([`crate::link::simulate_on_this_thread`]), moved by
-/// the runtime only when every task waits. The daemon's loops run as its tasks and talk
+/// [`run_sim_with`] on simulated time: a current-thread runtime whose paused clock the
+/// daemon and firmware-sim both read (`alfd-clock`, [`crate::link::simulate_on_this_thread`]),
+/// moved by the runtime only when every task waits. The daemon's loops run as its tasks and talk
 /// to the simulator through memory, so renders and estimates take no simulated time, the
 /// flight runs as fast as they allow, and the same arguments give the same flight.
 pub fn run_sim_on_simulated_time(
@@ -298,12 +298,9 @@ pub fn run_sim_on_simulated_time(
         .build()
         .map_err(|e| SimRunError::Setup(format!("runtime: {e}")))?;
     rt.block_on(async {
-        let _alfd =
+        // One clock for the daemon and firmware-sim (`alfd-clock`).
+        let _clock =
             crate::link::simulate_on_this_thread(SIMULATED_START_MONO_NS, SIMULATED_START_UNIX_US);
-        let _sim = firmware_sim::clock::simulate_on_this_thread(
-            SIMULATED_START_MONO_NS,
-            SIMULATED_START_UNIX_US,
-        );
         run_sim_with(args, hooks, shutdown).await
     })
 }
