@@ -467,3 +467,21 @@ fn check_config_accepts_the_shipped_configs_and_names_bad_fields() {
         &["sim.scene", "no-such-scene.toml"],
     );
 }
+
+/// What a flight on simulated time cannot do is refused before anything is written, naming
+/// the flag that makes it possible.
+#[test]
+fn sim_refuses_what_simulated_time_cannot_do() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    let out_s = out.to_str().unwrap();
+    rejects(
+        &["sim", "--pose", "telemetry", "--out", out_s],
+        &["--pose telemetry", "--real-time"],
+    );
+    rejects(
+        &["sim", "--gcs", "udpout:127.0.0.1:9", "--out", out_s],
+        &["--gcs", "--real-time"],
+    );
+    assert!(!out.exists(), "a refused run wrote {}", out.display());
+}

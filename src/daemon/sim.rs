@@ -312,6 +312,17 @@ pub async fn run_sim_with(
     shutdown: impl std::future::Future<Output = ()> + Send,
 ) -> Result<SimOutcome, SimRunError> {
     let setup = |e: String| SimRunError::Setup(e);
+    // Refused before anything is written.
+    if crate::link::simulated() && args.pose == SimPose::Telemetry {
+        return Err(setup(
+            "--pose telemetry renders at the link's answer, which a flight on simulated time cannot wait for: add --real-time".into(),
+        ));
+    }
+    if crate::link::simulated() && args.gcs.is_some() {
+        return Err(setup(
+            "--gcs: a ground station watches in real time; add --real-time".into(),
+        ));
+    }
     std::fs::create_dir_all(&args.out)
         .map_err(|e| setup(format!("{}: {e}", args.out.display())))?;
     let flight_dir = super::run::next_flight_dir(&args.out);
@@ -358,16 +369,6 @@ pub async fn run_sim_with(
     // On simulated time the daemon and the simulator share one runtime thread and talk
     // through memory (`link::wire`); in real time, through a pty as on the bench.
     let simulated = crate::link::simulated();
-    if simulated && args.pose == SimPose::Telemetry {
-        return Err(setup(
-            "sim.pose = \"telemetry\" renders at the link's answer, which a flight on simulated time cannot wait for: use --real-time".into(),
-        ));
-    }
-    if simulated && args.gcs.is_some() {
-        return Err(setup(
-            "--gcs: a ground station watches in real time; add --real-time".into(),
-        ));
-    }
     let mut sc = SimConfig {
         transport: if simulated {
             Transport::Memory
