@@ -286,7 +286,8 @@ pub const SIMULATED_START_UNIX_US: u64 = 1_782_036_000_000_000;
 /// daemon and firmware-sim both read (`alfd-clock`, [`crate::link::simulate_on_this_thread`]),
 /// moved by the runtime only when every task waits. The daemon's loops run as its tasks and talk
 /// to the simulator through memory, so renders and estimates take no simulated time, the
-/// flight runs as fast as they allow, and the same arguments give the same flight.
+/// flight runs as fast as they allow, and the same arguments give the same flight. It
+/// builds its own runtime: call it from outside one.
 pub fn run_sim_on_simulated_time(
     args: SimArgs,
     hooks: SimHooks,
