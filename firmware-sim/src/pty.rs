@@ -3,7 +3,8 @@
 //! attached; a stable symlink points at the current slave path, replaced atomically on reopen.
 
 use std::io;
-use std::os::fd::{AsRawFd, FromRawFd, OwnedFd, RawFd};
+use std::os::fd::OwnedFd;
+use std::os::unix::ffi::OsStrExt;
 use std::path::{Path, PathBuf};
 use std::pin::Pin;
 use std::sync::Arc;
@@ -17,54 +18,34 @@ pub struct Pty {
     pub slave_path: PathBuf,
 }
 
-fn cvt(r: libc::c_int) -> io::Result<libc::c_int> {
-    if r < 0 {
-        Err(io::Error::last_os_error())
-    } else {
-        Ok(r)
-    }
-}
-
 impl Pty {
     /// Open a raw pty pair.
     pub fn open() -> io::Result<Pty> {
-        let (mut m, mut s): (RawFd, RawFd) = (-1, -1);
-        let mut name = [0 as libc::c_char; 128];
-        // SAFETY: openpty writes two descriptors and a NUL-terminated name into buffers we own
-        // (128 bytes is above the kernel's pts name length); termios and winsize may be null.
-        cvt(unsafe {
-            libc::openpty(
-                &mut m,
-                &mut s,
-                name.as_mut_ptr(),
-                std::ptr::null(),
-                std::ptr::null(),
-            )
-        })?;
-        // SAFETY: both descriptors were just returned by openpty and are owned by nobody else.
-        let (master, slave) = unsafe { (OwnedFd::from_raw_fd(m), OwnedFd::from_raw_fd(s)) };
-        // SAFETY: `name` is NUL-terminated by openpty.
-        let slave_path = unsafe { std::ffi::CStr::from_ptr(name.as_ptr()) }
-            .to_string_lossy()
-            .into_owned();
-        for fd in [master.as_raw_fd(), slave.as_raw_fd()] {
-            let mut t = std::mem::MaybeUninit::<libc::termios>::uninit();
-            // SAFETY: tcgetattr fills the termios on success, checked before assume_init.
-            cvt(unsafe { libc::tcgetattr(fd, t.as_mut_ptr()) })?;
-            let mut t = unsafe { t.assume_init() };
-            // SAFETY: cfmakeraw only edits the struct; tcsetattr reads it.
-            unsafe { libc::cfmakeraw(&mut t) };
-            cvt(unsafe { libc::tcsetattr(fd, libc::TCSANOW, &t) })?;
+        use rustix::pty::{grantpt, openpt, ptsname, unlockpt, OpenptFlags};
+        let master = openpt(OpenptFlags::RDWR | OpenptFlags::NOCTTY | OpenptFlags::CLOEXEC)?;
+        grantpt(&master)?;
+        unlockpt(&master)?;
+        let slave_path = PathBuf::from(std::ffi::OsStr::from_bytes(
+            ptsname(&master, Vec::new())?.as_bytes(),
+        ));
+        let slave: OwnedFd = rustix::fs::open(
+            &slave_path,
+            rustix::fs::OFlags::RDWR | rustix::fs::OFlags::NOCTTY | rustix::fs::OFlags::CLOEXEC,
+            rustix::fs::Mode::empty(),
+        )?;
+        for fd in [&master, &slave] {
+            let mut t = rustix::termios::tcgetattr(fd)?;
+            t.make_raw();
+            rustix::termios::tcsetattr(fd, rustix::termios::OptionalActions::Now, &t)?;
         }
-        // SAFETY: plain fcntl flag update on a descriptor we own.
-        let flags = cvt(unsafe { libc::fcntl(master.as_raw_fd(), libc::F_GETFL) })?;
-        cvt(unsafe { libc::fcntl(master.as_raw_fd(), libc::F_SETFL, flags | libc::O_NONBLOCK) })?;
+        let flags = rustix::fs::fcntl_getfl(&master)?;
+        rustix::fs::fcntl_setfl(&master, flags | rustix::fs::OFlags::NONBLOCK)?;
         // SAFETY: the master descriptor is valid, non-blocking, and owned by the AsyncFd until dropped.
         let master = unsafe { AsyncFd::register(master)? };
         Ok(Pty {
             master: Arc::new(master),
             _slave: slave,
-            slave_path: slave_path.into(),
+            slave_path,
         })
     }
 
@@ -96,17 +77,7 @@ impl AsyncRead for PtyReader {
         loop {
             let mut guard = ready!(self.0.poll_read_ready(cx))?;
             let unfilled = buf.initialize_unfilled();
-            let res = guard.try_io(|fd| {
-                // SAFETY: reads at most `unfilled.len()` bytes into memory we borrow mutably.
-                let n = unsafe {
-                    libc::read(fd.as_raw_fd(), unfilled.as_mut_ptr().cast(), unfilled.len())
-                };
-                if n < 0 {
-                    Err(io::Error::last_os_error())
-                } else {
-                    Ok(n as usize)
-                }
-            });
+            let res = guard.try_io(|fd| Ok(rustix::io::read(fd.get_ref(), &mut *unfilled)?));
             match res {
                 Ok(Ok(n)) => {
                     buf.advance(n);
@@ -128,16 +99,7 @@ impl PtyWriter {
         let mut off = 0;
         while off < bytes.len() {
             let mut guard = self.0.writable().await?;
-            let res = guard.try_io(|fd| {
-                let rest = &bytes[off..];
-                // SAFETY: writes from a slice we borrow.
-                let n = unsafe { libc::write(fd.as_raw_fd(), rest.as_ptr().cast(), rest.len()) };
-                if n < 0 {
-                    Err(io::Error::last_os_error())
-                } else {
-                    Ok(n as usize)
-                }
-            });
+            let res = guard.try_io(|fd| Ok(rustix::io::write(fd.get_ref(), &bytes[off..])?));
             match res {
                 Ok(Ok(n)) => off += n,
                 Ok(Err(e)) => return Err(e),
