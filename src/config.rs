@@ -948,30 +948,15 @@ mod tests {
     #[test]
     fn word_fields_take_their_names_and_refuse_others_listing_them() {
         let ok = |text: &str| Config::from_text(text, "x.toml").unwrap();
-        let c = ok("[camera]
-source = \"recorded\"
-dir = \"r\"
-replay = \"live\"
-");
-        assert!(matches!(
-            c.camera.source,
-            Source::Recorded {
-                replay_live: true,
-                ..
-            }
-        ));
-        let c = ok("[camera]
-source = \"recorded\"
-dir = \"r\"
-replay = \"as_recorded\"
-");
-        assert!(matches!(
-            c.camera.source,
-            Source::Recorded {
-                replay_live: false,
-                ..
-            }
-        ));
+        for (word, live) in [("live", true), ("as_recorded", false)] {
+            let c = ok(&format!(
+                "[camera]\nsource = \"recorded\"\ndir = \"r\"\nreplay = \"{word}\"\n"
+            ));
+            assert!(
+                matches!(c.camera.source, Source::Recorded { replay_live, .. } if replay_live == live),
+                "replay = {word}"
+            );
+        }
         for (word, mjpeg) in [("mjpeg", true), ("yuyv", false)] {
             let c = ok(&format!(
                 "[camera]\nsource = \"v4l2\"\ndevice_serial = \"1\"\nformat = \"{word}\"\n"

@@ -9,15 +9,15 @@
 //! new clock within 2 s of a reboot) are asserted, not printed. The unplug also flies in
 //! real time over a pty, the serial path of a drone, with its figures printed.
 
+mod tools;
+
 use alfd::capture::{
     parse_manifest, read_manifest, CaptureRecord, CaptureStore, DirStore, FillingStore, MemStore,
     StoreError,
 };
 use alfd::config::Config;
 use alfd::daemon::run::BoxedStore;
-use alfd::daemon::sim::{
-    run_sim_on_simulated_time, run_sim_with, DepthOutage, OutageKind, SimArgs, SimHooks, SimOutcome,
-};
+use alfd::daemon::sim::{DepthOutage, OutageKind, SimArgs, SimHooks, SimOutcome};
 use alfd::link::mono_ns;
 use firmware_sim::config::{FaultEvent, Faults};
 use firmware_sim::{FaultKind, SimConfig, SimEvent, Truth};
@@ -153,17 +153,8 @@ fn fly_on(
         }),
         on_config: None,
     };
-    let out = if simulated {
-        run_sim_on_simulated_time(a, hooks, std::future::pending())
-    } else {
-        tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(2)
-            .enable_all()
-            .build()
-            .unwrap()
-            .block_on(run_sim_with(a, hooks, std::future::pending()))
-    }
-    .expect("the sim runs to its end");
+    let out = tools::fly_sim(simulated, a, hooks, std::future::pending())
+        .expect("the sim runs to its end");
     let config = Config::load(&out.flight_dir.join("alfd.toml")).expect("the run's config");
     let (events, events_lost) = events.lock().unwrap().clone();
     let t0 = *t0.lock().unwrap();

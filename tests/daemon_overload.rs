@@ -12,8 +12,10 @@
 //! (wall-clock bounds belong to the benches on a shared machine). Figures with
 //! `-- --nocapture`.
 
+mod tools;
+
 use alfd::capture::{parse_manifest, CaptureStore, MemStore, StoreError};
-use alfd::daemon::sim::{run_sim_on_simulated_time, run_sim_with, SimArgs, SimHooks, SimOutcome};
+use alfd::daemon::sim::{SimArgs, SimHooks};
 use firmware_sim::SimEvent;
 use std::path::Path;
 use std::sync::{Arc, Mutex};
@@ -118,17 +120,7 @@ fn overload(simulated: bool) {
         on_config: None,
     };
     let shutdown = async move { enough.notified().await };
-    let out: SimOutcome = if simulated {
-        run_sim_on_simulated_time(args, hooks, shutdown)
-    } else {
-        tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(2)
-            .enable_all()
-            .build()
-            .unwrap()
-            .block_on(run_sim_with(args, hooks, shutdown))
-    }
-    .expect("the sim runs");
+    let out = tools::fly_sim(simulated, args, hooks, shutdown).expect("the sim runs");
     let clock = if simulated { "simulated" } else { "real" };
     let report = &out.report;
     let (heard, lagged) = heard.lock().unwrap().clone();

@@ -41,6 +41,19 @@ fn sim(mode: CaptureMode) -> (tempfile::TempDir, SimOutcome) {
     (dir, out)
 }
 
+/// On simulated time the writer is never behind (its deadline handling is
+/// daemon_overload's to test), so no capture goes without its image.
+fn every_capture_has_its_image(records: &[CaptureRecord]) {
+    for r in records {
+        assert!(
+            r.image.is_some(),
+            "capture {}: no image ({:?})",
+            r.seq,
+            r.image_missing
+        );
+    }
+}
+
 /// One pixel of `alfd sim`'s default camera (640 px wide, 465.6 px focal length: what the
 /// COLMAP test reconstructs), in degrees. This test's own frames are smaller (a pixel is
 /// 0.49 deg), too coarse to show a pose that misses its picture by a third of a degree.
@@ -130,16 +143,7 @@ fn frame_mode_logs_images_at_the_true_poses_with_valid_exports() {
     assert_eq!(m.torn_tail_bytes, 0);
     assert!(m.bad_lines.is_empty(), "{:?}", m.bad_lines);
     check_against_truth(&out, &m.records);
-    // Every capture has its image: on simulated time the writer is never behind (its
-    // deadline handling is daemon_overload's to test).
-    for r in &m.records {
-        assert!(
-            r.image.is_some(),
-            "capture {}: no image ({:?})",
-            r.seq,
-            r.image_missing
-        );
-    }
+    every_capture_has_its_image(&m.records);
     eprintln!("frame mode: {} captures", m.records.len());
     // Every capture was answered, and where its time went is reported (issue 14's figure:
     // `cargo test --test daemon_sim frame_mode -- --nocapture`).
@@ -340,14 +344,7 @@ fn simulated_time_flies_the_same_flight_twice() {
     }
     let m = read_manifest(&first.flight_dir.join("manifest.jsonl")).unwrap();
     check_against_truth(&first, &m.records);
-    for r in &m.records {
-        assert!(
-            r.image.is_some(),
-            "capture {}: no image ({:?})",
-            r.seq,
-            r.image_missing
-        );
-    }
+    every_capture_has_its_image(&m.records);
     let latency = first
         .report
         .latency

@@ -1,7 +1,8 @@
 //! What several integration tests share: the external programs some talk to (Python with
 //! pymavlink or pycolmap, exiftool): present, or the test is skipped with a message saying what
 //! to install; in CI (`CI` set) a missing one fails the test instead, so CI never passes by
-//! skipping. And the config of `alfd run` on synthetic cameras over the tower scene.
+//! skipping. And the config of `alfd run` on synthetic cameras over the tower scene, and
+//! `alfd sim` flown on either clock.
 #![allow(dead_code)]
 
 use std::io::{BufRead, BufReader};
@@ -129,4 +130,24 @@ pub fn exiftool(test: &str) -> bool {
         "exiftool",
         "apt-get install libimage-exiftool-perl, or run scripts/setup.sh",
     )
+}
+
+/// An `alfd sim` flight on simulated time (its own current-thread runtime), or in real time
+/// over a pty on a two-worker runtime, the daemon's loops on their threads as in flight.
+pub fn fly_sim(
+    simulated: bool,
+    args: alfd::daemon::sim::SimArgs,
+    hooks: alfd::daemon::sim::SimHooks,
+    shutdown: impl std::future::Future<Output = ()> + Send,
+) -> Result<alfd::daemon::sim::SimOutcome, alfd::daemon::sim::SimRunError> {
+    if simulated {
+        alfd::daemon::sim::run_sim_on_simulated_time(args, hooks, shutdown)
+    } else {
+        tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .enable_all()
+            .build()
+            .expect("a runtime")
+            .block_on(alfd::daemon::sim::run_sim_with(args, hooks, shutdown))
+    }
 }
