@@ -2,13 +2,7 @@
 //! timestamps use), or simulated time on a paused tokio clock, both from `alfd-clock`, the
 //! crate alfd reads too; and the autopilot's boot clock derived from it with a drift.
 
-pub use alfd_clock::{mono_ns, unix_us};
-
-/// A tokio instant `ns` from now on the monotonic clock (now if in the past).
-pub fn instant_at(mono: u64) -> tokio::time::Instant {
-    let now = mono_ns();
-    tokio::time::Instant::now() + std::time::Duration::from_nanos(mono.saturating_sub(now))
-}
+pub use alfd_clock::{instant_at, mono_ns, unix_us};
 
 /// The autopilot's boot clock: restarted at `boot_mono_ns`, running `1 + drift` times as fast.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -83,12 +83,6 @@ impl DepthSource for Ticks {
     }
 }
 
-/// A monotonic instant as the runtime's timer sees it.
-fn instant_at(mono: u64) -> tokio::time::Instant {
-    let now = mono_ns();
-    tokio::time::Instant::now() + Duration::from_nanos(mono.saturating_sub(now))
-}
-
 pub async fn depth_loop(
     mut src: Box<dyn DepthSource>,
     tx: mpsc::Sender<Stamped<DepthImage>>,
@@ -99,7 +93,7 @@ pub async fn depth_loop(
     let mut last_seq: Option<u64> = None;
     while !shutdown.is_stopping() {
         if let Some(t) = src.due_ns() {
-            tokio::time::sleep_until(instant_at(t)).await;
+            tokio::time::sleep_until(crate::link::clock::instant_at(t)).await;
         }
         let next = src.next_depth();
         crate::link::clock::settle().await;

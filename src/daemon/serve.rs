@@ -8,7 +8,7 @@ use super::estimator_task::{Counters, Decided};
 use super::outbox::{now, reserve, sleep_until, tick, written, Outbox};
 use super::shutdown::{Shutdown, Stage};
 use super::writer::{Space, Written};
-use crate::link::{mono_ns, LinkEvent, LinkHandle};
+use crate::link::{LinkEvent, LinkHandle};
 use crate::notify::Notifier;
 use std::sync::Arc;
 use std::time::Duration;
@@ -45,9 +45,7 @@ impl Loop {
         let mut second = tokio::time::interval(Duration::from_secs(1));
         second.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         loop {
-            let due = self.co.next_due_ns().map(|t| {
-                tokio::time::Instant::now() + Duration::from_nanos(t.saturating_sub(mono_ns()))
-            });
+            let due = self.co.next_due_ns().map(crate::link::clock::instant_at);
             let co = &mut self.co;
             let (link, space, counters) = (&self.link, &self.space, &self.counters);
             let actions = tokio::select! {

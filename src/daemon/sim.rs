@@ -313,13 +313,16 @@ pub async fn run_sim_with(
     shutdown: impl std::future::Future<Output = ()> + Send,
 ) -> Result<SimOutcome, SimRunError> {
     let setup = |e: String| SimRunError::Setup(e);
+    // On simulated time the daemon and the simulator share one runtime thread and talk
+    // through memory (`link::wire`); in real time, through a pty as on the bench.
+    let simulated = crate::link::simulated();
     // Refused before anything is written.
-    if crate::link::simulated() && args.pose == SimPose::Telemetry {
+    if simulated && args.pose == SimPose::Telemetry {
         return Err(setup(
             "--pose telemetry renders at the link's answer, which a flight on simulated time cannot wait for: add --real-time".into(),
         ));
     }
-    if crate::link::simulated() && args.gcs.is_some() {
+    if simulated && args.gcs.is_some() {
         return Err(setup(
             "--gcs: a ground station watches in real time; add --real-time".into(),
         ));
@@ -367,9 +370,6 @@ pub async fn run_sim_with(
     // The simulated autopilot: a line north over the scene's survey, or lanes
     // east of it flown back and forth (one strip leaves a reconstruction's
     // lateral positions to trade against roll; a second one fixes them).
-    // On simulated time the daemon and the simulator share one runtime thread and talk
-    // through memory (`link::wire`); in real time, through a pty as on the bench.
-    let simulated = crate::link::simulated();
     let mut sc = SimConfig {
         transport: if simulated {
             Transport::Memory

@@ -6,5 +6,6 @@
 //! It lives in the `alfd-clock` crate, which firmware-sim reads too: one clock for both.
 
 pub use alfd_clock::{
-    mono_ns, settle, simulate_on_this_thread, simulated, spend, unix_us_at, SimulatedTime,
+    instant_at, mono_ns, settle, simulate_on_this_thread, simulated, spend, unix_us_at,
+    SimulatedTime,
 };

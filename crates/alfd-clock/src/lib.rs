@@ -62,6 +62,12 @@ pub fn mono_ns() -> u64 {
     ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
 }
 
+/// The runtime's timer instant of a monotonic instant (now, if it is past): what a loop
+/// sleeps until to wake at a frame's or a tick's instant, on either clock.
+pub fn instant_at(mono: u64) -> tokio::time::Instant {
+    tokio::time::Instant::now() + Duration::from_nanos(mono.saturating_sub(mono_ns()))
+}
+
 /// Unix time (µs) of a monotonic instant. In flight the offset between the two clocks
 /// is taken once (the tightest of a few paired readings): read afresh for every
 /// message, a thread paused between the two reads stamped telemetry out of order.
@@ -134,13 +140,21 @@ mod tests {
             assert_eq!(unix_us(), 1_782_036_000_000_000);
             tokio::time::sleep(Duration::from_secs(3600)).await;
             assert_eq!(mono_ns(), 1_000_000_000_000 + 3_600_000_000_000);
+            tokio::time::sleep_until(instant_at(mono_ns() + 1_000_000)).await;
+            assert_eq!(mono_ns(), 1_000_000_000_000 + 3_600_001_000_000);
+            tokio::time::sleep_until(instant_at(0)).await;
+            assert_eq!(
+                mono_ns(),
+                1_000_000_000_000 + 3_600_001_000_000,
+                "a past instant is now"
+            );
             assert_eq!(
                 unix_us_at(1_000_000_000_000 - 1_000),
                 Some(1_782_035_999_999_999)
             );
             spend(Duration::from_millis(250));
             settle().await;
-            assert_eq!(mono_ns(), 1_000_000_000_000 + 3_600_250_000_000);
+            assert_eq!(mono_ns(), 1_000_000_000_000 + 3_600_251_000_000);
             drop(guard);
             assert!(!simulated());
         });
