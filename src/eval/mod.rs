@@ -404,6 +404,11 @@ pub struct SegmentTruth {
     /// The visibility model (issue 13): its median spacing over the segment's
     /// views, and the unseen fraction it predicts at the target spacing.
     pub visibility_predicted_m: Option<f64>,
+    /// The same model's tightest spacing over the segment's views: what the
+    /// trigger flies there, since it applies the tightest spacing seen since
+    /// the last capture, against the empirical spacing of the segment's
+    /// worst in-between view.
+    pub visibility_tightest_m: Option<f64>,
     pub unseen_visibility_predicted: Option<f64>,
     /// At the target spacing, the quality model's prediction of the worst interval's
     /// parallax (px) and unseen fraction: open loop (worst over the segment's frames) and
@@ -1272,6 +1277,10 @@ pub fn evaluate_scene(
                     .map(|e| e.visibility_m.unwrap_or(f64::INFINITY))
                     .collect(),
             ),
+            visibility_tightest_m: seg_est
+                .iter()
+                .map(|e| e.visibility_m.unwrap_or(f64::INFINITY))
+                .min_by(f64::total_cmp),
             unseen_visibility_predicted: target_m.and_then(|t| {
                 median(
                     visibilities[a..=b]

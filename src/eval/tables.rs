@@ -82,14 +82,8 @@ pub fn segments_json(results: &[SceneResult]) -> Value {
                 pred.insert(model.as_str().into(), onum(seg.predicted_m[m]));
             }
             pred.insert("visibility".into(), onum(t.visibility_predicted_m));
-            let ln_err = |m: usize| match (
-                if m < 3 {
-                    seg.predicted_m[m]
-                } else {
-                    t.visibility_predicted_m
-                },
-                t.target_m,
-            ) {
+            pred.insert("visibility_tightest".into(), onum(t.visibility_tightest_m));
+            let ln_err = |p: Option<f64>| match (p, t.target_m) {
                 (Some(p), Some(e)) if p.is_finite() && !t.target_at_least => num((p / e).ln()),
                 _ => Value::Null,
             };
@@ -112,7 +106,7 @@ pub fn segments_json(results: &[SceneResult]) -> Value {
                     "psnr_2db": {"lightfield": num(seg.empirical_m[2][0]), "warp": num(seg.empirical_m[2][1])},
                 },
                 "predicted_m": Value::Object(pred),
-                "ln_error": {"occlusion": ln_err(0), "mmds": ln_err(1), "sspa": ln_err(2), "visibility": ln_err(3)},
+                "ln_error": {"occlusion": ln_err(seg.predicted_m[0]), "mmds": ln_err(seg.predicted_m[1]), "sspa": ln_err(seg.predicted_m[2]), "visibility": ln_err(t.visibility_predicted_m), "visibility_tightest": ln_err(t.visibility_tightest_m)},
                 "unseen_fraction": {"predicted": onum(t.unseen_predicted), "predicted_visibility": onum(t.unseen_visibility_predicted), "truth": onum(t.unseen_truth)},
                 "parallax_px": {"predicted": onum(t.parallax_predicted_px), "open_loop": onum(t.parallax_open_px), "closed_loop": onum(t.parallax_closed_px), "truth": onum(t.parallax_truth_px)},
                 "unseen_fraction_quality": {"open_loop": onum(t.unseen_open), "closed_loop": onum(t.unseen_closed), "truth": onum(t.unseen_truth)},
@@ -250,18 +244,18 @@ pub fn markdown(results: &[SceneResult]) -> String {
         s,
         "### Empirical permissible spacing per segment, and each model's prediction\n"
     );
-    let _ = writeln!(s, "Empirical (m): the largest uniform spacing of the sweep (neighbours ≤ 1.25× apart) meeting each target by the truth, over every in-between view of the segment; `target` meets all three. `≥`: the sweep reached the segment's length first. Predictions: median over the segment's views of each model's permissible spacing. At the target spacing: parallax (px) predicted by the MMDS formula from live depth against the worst true span; unseen fraction predicted by the occlusion model `ρ·b` against the worst true fraction.\n");
-    let _ = writeln!(s, "| scene | held | segment x (m) | target | parallax | unseen | views/pt (shortest interval) | binds | occlusion | MMDS | SSPA | parallax at target: pred / truth | unseen at target: pred / truth |");
+    let _ = writeln!(s, "Empirical (m): the largest uniform spacing of the sweep (neighbours ≤ 1.25× apart) meeting each target by the truth, over every in-between view of the segment; `target` meets all three. `≥`: the sweep reached the segment's length first. Predictions: median over the segment's views of each model's permissible spacing; for the quality model also the tightest view's, which is what the trigger flies (it applies the tightest spacing seen since the last capture). At the target spacing: parallax (px) predicted by the MMDS formula from live depth against the worst true span; unseen fraction predicted by the occlusion model `ρ·b` against the worst true fraction.\n");
+    let _ = writeln!(s, "| scene | held | segment x (m) | target | parallax | unseen | views/pt (shortest interval) | binds | occlusion | MMDS | SSPA | quality: median / tightest frame | parallax at target: pred / truth | unseen at target: ρ·b / quality / truth |");
     let _ = writeln!(
         s,
-        "|---|---|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|"
+        "|---|---|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|"
     );
     for r in results {
         for seg in &r.segments {
             let tr = &seg.truth;
             let _ = writeln!(
                 s,
-                "| {} | {} | {:.1} – {:.1} | {} | {} | {} | {} ({}) | {} | {} | {} | {} | {} | {} / {} | {} / {} / {} |",
+                "| {} | {} | {:.1} – {:.1} | {} | {} | {} | {} ({}) | {} | {} | {} | {} | {} / {} | {} / {} | {} / {} / {} |",
                 r.name,
                 held(&r.name),
                 seg.x0_m,
@@ -276,6 +270,7 @@ pub fn markdown(results: &[SceneResult]) -> String {
                 f(seg.predicted_m[1], 3),
                 f(seg.predicted_m[2], 3),
                 f(tr.visibility_predicted_m, 3),
+                f(tr.visibility_tightest_m, 3),
                 f(tr.parallax_predicted_px, 2),
                 f(tr.parallax_truth_px, 2),
                 f(tr.unseen_predicted, 4),
@@ -285,13 +280,19 @@ pub fn markdown(results: &[SceneResult]) -> String {
         }
     }
 
-    let _ = writeln!(s, "\nAccuracy of each model against the target spacing: |ln(prediction / empirical)| over segments with a bounded empirical value, mean / median / worst (number of segments). `visibility` is the daemon's default, the quality model (issue 13) with these targets, open loop from one frame: the largest spacing keeping the disparity span ≤ the parallax target (each pixel's own gain off nadir), the predicted unseen fraction ≤ target and every point of the middle half in ≥ k captures.\n");
+    let _ = writeln!(s, "\nAccuracy of each model against the target spacing: |ln(prediction / empirical)| over segments with a bounded empirical value, mean / median / worst (number of segments). `visibility` is the daemon's default, the quality model (issue 13) with these targets, open loop from one frame: the largest spacing keeping the disparity span ≤ the parallax target (each pixel's own gain off nadir), the predicted unseen fraction ≤ target and every point of the middle half in ≥ k captures; the median view's (as the other models), and the tightest view's: the trigger applies the tightest spacing seen since the last capture, and the empirical spacing is the segment's worst in-between view's.\n");
     let _ = writeln!(s, "| model | held in | held out |");
     let _ = writeln!(s, "|---|---:|---:|");
-    for (m, model) in ["occlusion", "mmds", "sspa", "visibility"]
-        .iter()
-        .enumerate()
-    {
+    let models: [(&str, fn(&Segment) -> Option<f64>); 5] = [
+        ("occlusion", |seg| seg.predicted_m[0]),
+        ("mmds", |seg| seg.predicted_m[1]),
+        ("sspa", |seg| seg.predicted_m[2]),
+        ("visibility", |seg| seg.truth.visibility_predicted_m),
+        ("visibility, tightest frame", |seg| {
+            seg.truth.visibility_tightest_m
+        }),
+    ];
+    for (model, predicted) in models {
         let acc = |inside: bool| {
             let mut v: Vec<f64> = Vec::new();
             for r in results
@@ -299,12 +300,7 @@ pub fn markdown(results: &[SceneResult]) -> String {
                 .filter(|r| CALIBRATION_FIT.contains(&r.name.as_str()) == inside)
             {
                 for seg in &r.segments {
-                    let pred = if m < 3 {
-                        seg.predicted_m[m]
-                    } else {
-                        seg.truth.visibility_predicted_m
-                    };
-                    if let (Some(p), Some(e)) = (pred, seg.truth.target_m) {
+                    if let (Some(p), Some(e)) = (predicted(seg), seg.truth.target_m) {
                         if p.is_finite() && !seg.truth.target_at_least {
                             v.push((p / e).ln().abs());
                         }
