@@ -82,10 +82,7 @@ fn bench(c: &mut Criterion) {
         // `decimation = "auto"` in steady state: one calibration (every level, full
         // resolution included) per AUTO_RECALIBRATE_FRAMES frames, the chosen level between.
         let mut est_auto = Estimator::new(EstimatorParams {
-            decimation: alfd::core::Decimation::Auto {
-                budget: 0.05,
-                levels: alfd::core::params::DECIMATION_LEVELS.to_vec(),
-            },
+            decimation: alfd::core::Decimation::auto(),
             ..params.clone()
         });
         g.bench_function("estimate_auto_steady", |b| {

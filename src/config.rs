@@ -6,7 +6,9 @@
 
 use crate::capture::{CaptureMode, ImageFormat};
 use crate::core::inverse::DepthRange;
-use crate::core::params::{Decimation, GainModel, DECIMATION_LEVELS};
+use crate::core::params::{
+    Decimation, GainModel, AUTO_RECALIBRATE_FRAMES, DECIMATION_BUDGET, DECIMATION_LEVELS,
+};
 use crate::core::trigger::TriggerParams;
 use crate::core::{EstimatorParams, Model, ParamError, Profile, TrackAxis};
 use crate::link::{LinkConfig, RawLinkConfig};
@@ -207,6 +209,7 @@ pub struct RawEstimator {
     pub decimation: Option<RawDecimation>,
     pub decimation_budget: Option<f64>,
     pub decimation_levels: Option<Vec<i64>>,
+    pub decimation_recalibrate_frames: Option<i64>,
     pub sspa_iterations: Option<i64>,
     pub sspa_trim_sigma: Option<f64>,
     pub visibility_samples_max: Option<i64>,
@@ -395,7 +398,16 @@ impl RawConfig {
                 }
             };
         }
-        let budget = e.decimation_budget.unwrap_or(0.05);
+        let budget = e.decimation_budget.unwrap_or(DECIMATION_BUDGET);
+        let recalibrate_frames = match e.decimation_recalibrate_frames {
+            Some(v) => u32::try_from(v).map_err(|_| {
+                bad(
+                    "estimator.decimation_recalibrate_frames",
+                    format!("must be from 1 to 100000 frames, got {v}"),
+                )
+            })?,
+            None => AUTO_RECALIBRATE_FRAMES,
+        };
         let levels = match &e.decimation_levels {
             Some(l) => l
                 .iter()
@@ -406,7 +418,11 @@ impl RawConfig {
         p.decimation = match &e.decimation {
             None => Decimation::Fixed(1),
             Some(RawDecimation::Stride(n)) => Decimation::Fixed(count("estimator.decimation", *n)?),
-            Some(RawDecimation::Word(w)) if w == "auto" => Decimation::Auto { budget, levels },
+            Some(RawDecimation::Word(w)) if w == "auto" => Decimation::Auto {
+                budget,
+                levels,
+                recalibrate_frames,
+            },
             Some(RawDecimation::Word(w)) => {
                 return Err(bad(
                     "estimator.decimation",
@@ -878,7 +894,8 @@ mod tests {
     fn fields_are_read_and_typed() {
         let c = Config::from_text(
             "[sampling]\nmodel = \"sspa\"\nocclusion_max = 0.02\nalso = [\"occlusion\"]\n\
-             [estimator]\ndecimation = \"auto\"\ndecimation_budget = 0.1\ntrack_axis = \"columns\"\n\
+             [estimator]\ndecimation = \"auto\"\ndecimation_budget = 0.1\ndecimation_recalibrate_frames = 90\n\
+             track_axis = \"columns\"\n\
              [score]\npitch_candidates_deg = [-10.0, 10.0, 10.0]\n",
             "x.toml",
         )
@@ -888,7 +905,10 @@ mod tests {
         assert_eq!(c.occlusion_max, 0.02);
         assert!(c.with_occlusion);
         assert_eq!(c.track_axis, TrackAxis::Columns);
-        assert!(matches!(c.decimation, Decimation::Auto { budget, .. } if budget == 0.1));
+        assert!(
+            matches!(c.decimation, Decimation::Auto { budget, recalibrate_frames, .. }
+            if budget == 0.1 && recalibrate_frames == 90)
+        );
         assert_eq!(c.score.unwrap().candidates_rad.len(), 3);
     }
 
@@ -907,6 +927,18 @@ mod tests {
         assert!(e.to_string().contains("sampling.model"), "{e}");
         let e = Config::from_text("[estimator]\ndecimation = -2\n", "x.toml").unwrap_err();
         assert!(e.to_string().contains("estimator.decimation"), "{e}");
+        for frames in ["0", "-1", "100001", "5000000000"] {
+            let e = Config::from_text(
+                &format!("[estimator]\ndecimation = \"auto\"\ndecimation_recalibrate_frames = {frames}\n"),
+                "x.toml",
+            )
+            .unwrap_err();
+            assert!(
+                e.to_string()
+                    .contains("estimator.decimation_recalibrate_frames"),
+                "{e}"
+            );
+        }
     }
 
     #[test]

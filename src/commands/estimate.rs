@@ -117,10 +117,7 @@ pub fn run(a: Args) -> Result<ExitCode> {
         p.decimation = if d == "auto" {
             match &p.decimation {
                 Decimation::Auto { .. } => p.decimation.clone(),
-                _ => Decimation::Auto {
-                    budget: 0.05,
-                    levels: alfd::core::params::DECIMATION_LEVELS.to_vec(),
-                },
+                _ => Decimation::auto(),
             }
         } else {
             let n: usize = d

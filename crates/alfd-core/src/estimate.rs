@@ -320,7 +320,8 @@ pub enum EstimateError {
 pub struct DecimationChoice {
     pub level: usize,
     pub budget: f64,
-    /// `(level, relative spacing error against level 1)`, finest first.
+    /// `(level, relative spacing error against level 1)`: level 1, then each level
+    /// tried, coarsest first (calibration stops at the first within budget).
     pub errors: Vec<(usize, f64)>,
 }
 
@@ -350,10 +351,7 @@ pub struct Estimator {
     auto: Option<AutoLevel>,
 }
 
-/// Frames `Decimation::Auto` estimates at its calibrated level before calibrating again (a
-/// second at 30 fps): calibrating estimates at every level, full resolution included, so
-/// doing it on every frame would cost more than never decimating.
-pub const AUTO_RECALIBRATE_FRAMES: u32 = 30;
+pub use super::params::AUTO_RECALIBRATE_FRAMES;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct AutoLevel {
@@ -387,7 +385,7 @@ impl Estimator {
     }
 
     /// The estimate at the configured decimation. `Auto` calibrates on the first frame,
-    /// every [`AUTO_RECALIBRATE_FRAMES`] frames after, on a new frame size and whenever the
+    /// every `recalibrate_frames` frames after, on a new frame size and whenever the
     /// calibrated level gives no estimate; the choice is returned on the frames it was made.
     pub fn estimate(
         &mut self,
@@ -397,11 +395,15 @@ impl Estimator {
     ) -> Result<(Estimate, Option<DecimationChoice>), EstimateError> {
         match self.params.decimation.clone() {
             Decimation::Fixed(n) => Ok((self.estimate_at(image, intr, pitch_rad, n)?, None)),
-            Decimation::Auto { budget, levels } => {
+            Decimation::Auto {
+                budget,
+                levels,
+                recalibrate_frames,
+            } => {
                 let size = (image.width(), image.height());
                 if let Some(a) = self
                     .auto
-                    .filter(|a| a.size == size && a.frames < AUTO_RECALIBRATE_FRAMES)
+                    .filter(|a| a.size == size && a.frames < recalibrate_frames)
                 {
                     let e = self.estimate_at(image, intr, pitch_rad, a.level)?;
                     if e.is_ok() {
@@ -423,9 +425,10 @@ impl Estimator {
         }
     }
 
-    /// Estimates at every level; returns the coarsest one whose permissible
-    /// spacing, and occlusion density where computed, are within `budget` of
-    /// full resolution (level 1 always qualifies).
+    /// Returns the coarsest level whose permissible spacing, and occlusion density where
+    /// computed, are within `budget` of full resolution (level 1 always qualifies). The
+    /// levels are tried coarsest first and the first within budget is taken: the same
+    /// choice as trying all, without estimating the finer ones (`errors` lists the tried).
     pub fn calibrate(
         &mut self,
         image: &DepthImage,
@@ -435,12 +438,11 @@ impl Estimator {
         levels: &[usize],
     ) -> Result<(Estimate, DecimationChoice), EstimateError> {
         let reference = self.estimate_at(image, intr, pitch_rad, 1)?;
-        let mut best = (1usize, reference.clone());
         let mut errors = vec![(1usize, 0.0)];
         let mut sorted: Vec<usize> = levels.iter().copied().filter(|&l| l > 1).collect();
         sorted.sort_unstable();
         sorted.dedup();
-        for level in sorted {
+        for &level in sorted.iter().rev() {
             let e = self.estimate_at(image, intr, pitch_rad, level)?;
             let err = if e.is_ok() != reference.is_ok() {
                 f64::INFINITY
@@ -457,14 +459,21 @@ impl Estimator {
                     .max(density_err)
             };
             errors.push((level, err));
-            if err <= budget && level > best.0 {
-                best = (level, e);
+            if err <= budget {
+                return Ok((
+                    e,
+                    DecimationChoice {
+                        level,
+                        budget,
+                        errors,
+                    },
+                ));
             }
         }
         Ok((
-            best.1,
+            reference,
             DecimationChoice {
-                level: best.0,
+                level: 1,
                 budget,
                 errors,
             },

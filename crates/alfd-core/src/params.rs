@@ -129,9 +129,33 @@ pub enum Decimation {
     /// Every `n`-th pixel along and across track.
     Fixed(usize),
     /// The coarsest of `levels` whose spacing stays within `budget` (relative)
-    /// of full resolution on the frame it is calibrated on.
-    Auto { budget: f64, levels: Vec<usize> },
+    /// of full resolution on the frame it is calibrated on, calibrated again
+    /// after `recalibrate_frames` frames at that level.
+    Auto {
+        budget: f64,
+        levels: Vec<usize>,
+        recalibrate_frames: u32,
+    },
 }
+
+impl Decimation {
+    /// `Auto` with the default budget, levels and recalibration period.
+    pub fn auto() -> Decimation {
+        Decimation::Auto {
+            budget: DECIMATION_BUDGET,
+            levels: DECIMATION_LEVELS.to_vec(),
+            recalibrate_frames: AUTO_RECALIBRATE_FRAMES,
+        }
+    }
+}
+
+/// `Decimation::Auto`'s default budget: 5 % of the full-resolution spacing.
+pub const DECIMATION_BUDGET: f64 = 0.05;
+
+/// Frames `Decimation::Auto` estimates at its calibrated level before calibrating again by
+/// default (a second at 30 fps): calibrating costs a full-resolution estimate, so doing it on
+/// every frame would cost more than never decimating (`docs/performance.md`).
+pub const AUTO_RECALIBRATE_FRAMES: u32 = 30;
 
 pub const DECIMATION_LEVELS: [usize; 5] = [1, 2, 4, 8, 16];
 
@@ -410,7 +434,16 @@ impl EstimatorParams {
             Decimation::Fixed(n) => check((1..=256).contains(n), "estimator.decimation", || {
                 format!("must be \"auto\" or a stride from 1 to 256, got {n}")
             })?,
-            Decimation::Auto { budget, levels } => {
+            Decimation::Auto {
+                budget,
+                levels,
+                recalibrate_frames,
+            } => {
+                check(
+                    (1..=100_000).contains(recalibrate_frames),
+                    "estimator.decimation_recalibrate_frames",
+                    || format!("must be from 1 to 100000 frames, got {recalibrate_frames}"),
+                )?;
                 check(
                     in_range(*budget, 0.0, 1.0),
                     "estimator.decimation_budget",

@@ -592,21 +592,46 @@ fn score_at_the_current_pitch_reproduces_the_direct_degree() {
 #[test]
 fn auto_decimation_picks_the_coarsest_level_within_budget() {
     let intr = Intrinsics::from_hfov_deg(320, 240, 69.0, None).unwrap();
-    let img = stripes(320, 240, 40, 20.0, 40.0);
-    let mut est = Estimator::new(no_score());
-    let (e, c) = est
-        .calibrate(&img, &intr, 0.0, 0.05, &DECIMATION_LEVELS)
-        .unwrap();
-    assert_eq!(c.errors.len(), 5);
-    let within: Vec<usize> = c
-        .errors
-        .iter()
-        .filter(|(_, err)| *err <= 0.05)
-        .map(|(l, _)| *l)
-        .collect();
-    assert_eq!(c.level, *within.iter().max().unwrap());
-    assert_eq!(e.decimation, c.level);
-    assert_eq!(c.errors[0], (1, 0.0));
+    // Stripes every 40 px, and a frame of fine detail (every 3 px), where coarse
+    // levels miss the far stripes: calibration must stop at a finer level there.
+    let mut chosen = Vec::new();
+    for img in [
+        stripes(320, 240, 40, 20.0, 40.0),
+        stripes(320, 240, 3, 20.0, 40.0),
+    ] {
+        let mut est = Estimator::new(no_score());
+        let reference = est.estimate_at(&img, &intr, 0.0, 1).unwrap();
+        // By brute force: every level's error, the coarsest within budget.
+        let within = DECIMATION_LEVELS
+            .iter()
+            .copied()
+            .filter(|&l| {
+                let e = est.estimate_at(&img, &intr, 0.0, l).unwrap();
+                relative_error(e.spacing.permissible_m, reference.spacing.permissible_m) <= 0.05
+            })
+            .max()
+            .unwrap();
+        let (e, c) = est
+            .calibrate(&img, &intr, 0.0, 0.05, &DECIMATION_LEVELS)
+            .unwrap();
+        assert_eq!(c.level, within);
+        assert_eq!(e.decimation, c.level);
+        assert_eq!(c.errors[0], (1, 0.0));
+        // Tried coarsest first, stopping at the first within budget.
+        let tried: Vec<usize> = c.errors[1..].iter().map(|&(l, _)| l).collect();
+        let expected: Vec<usize> = DECIMATION_LEVELS
+            .iter()
+            .rev()
+            .copied()
+            .filter(|&l| l > 1 && l >= within)
+            .collect();
+        assert_eq!(tried, expected);
+        assert!(c.errors[1..c.errors.len() - 1]
+            .iter()
+            .all(|&(_, err)| err > 0.05));
+        chosen.push(c.level);
+    }
+    assert!(chosen[1] < 16, "the fine frame stopped finer: {chosen:?}");
 }
 
 #[test]
@@ -614,10 +639,7 @@ fn auto_decimation_calibrates_once_a_second_not_on_every_frame() {
     let intr = Intrinsics::from_hfov_deg(320, 240, 69.0, None).unwrap();
     let img = stripes(320, 240, 40, 20.0, 40.0);
     let mut est = Estimator::new(EstimatorParams {
-        decimation: Decimation::Auto {
-            budget: 0.05,
-            levels: DECIMATION_LEVELS.to_vec(),
-        },
+        decimation: Decimation::auto(),
         ..no_score()
     });
     let (first, choice) = est.estimate(&img, &intr, 0.0).unwrap();
@@ -636,6 +658,27 @@ fn auto_decimation_calibrates_once_a_second_not_on_every_frame() {
     let small = stripes(160, 120, 20, 20.0, 40.0);
     assert!(est.estimate(&small, &intr2, 0.0).unwrap().1.is_some());
     assert!(est.estimate(&small, &intr2, 0.0).unwrap().1.is_none());
+}
+
+#[test]
+fn auto_decimation_recalibrates_after_its_configured_frames() {
+    let intr = Intrinsics::from_hfov_deg(320, 240, 69.0, None).unwrap();
+    let img = stripes(320, 240, 40, 20.0, 40.0);
+    let mut est = Estimator::new(EstimatorParams {
+        decimation: Decimation::Auto {
+            budget: 0.05,
+            levels: DECIMATION_LEVELS.to_vec(),
+            recalibrate_frames: 3,
+        },
+        ..no_score()
+    });
+    let calibrated: Vec<bool> = (0..9)
+        .map(|_| est.estimate(&img, &intr, 0.0).unwrap().1.is_some())
+        .collect();
+    assert_eq!(
+        calibrated,
+        [true, false, false, false, true, false, false, false, true]
+    );
 }
 
 #[test]

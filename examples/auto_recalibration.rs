@@ -1,0 +1,218 @@
+//! What `decimation = "auto"`'s recalibration period buys and costs: along each
+//! scene's survey line, 640×480 Z16 depth every 1/30 s at the scene's speed (the
+//! daemon's 30 fps), the daemon's estimator (`[quality] profile = "lightfield"`, as `alfd sim`) with `auto`
+//! recalibrated every `P` frames, against the full-resolution estimate of the same
+//! frame. Per period: the estimator's time per frame as a ratio to reading the frame
+//! once (the sum of its u16 values, timed on the same frames in the same run), and the
+//! relative spacing error of every frame against full resolution (`docs/performance.md`):
+//! `cargo run --release --example auto_recalibration [-- scenes/district.toml ...]`
+//! (default: the eight evaluation scenes and `district`).
+
+use alfd::core::estimate::relative_error;
+use alfd::core::{Decimation, DepthData, Estimator, EstimatorParams};
+use alfd::render::{render_depth, survey_camera, Frame, SensorModel};
+use alfd::scene::Scene;
+use std::hint::black_box;
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+const W: usize = 640;
+const H: usize = 480;
+const FPS: f64 = 30.0;
+/// Recalibration periods studied, frames (`u32::MAX`: only the first frame).
+const PERIODS: [u32; 6] = [1, 30, 90, 150, 300, u32::MAX];
+const FIXED: [usize; 5] = [1, 2, 4, 8, 16];
+
+#[derive(Default)]
+struct Tally {
+    time: Duration,
+    errors: Vec<f64>,
+    calibrations: usize,
+    levels: Vec<usize>,
+    /// The worst frame: its position, and each term's spacing at full
+    /// resolution and as estimated.
+    worst: Option<(f64, f64, String)>,
+}
+
+/// Each term's spacing of two estimates, `full → estimated`, m.
+fn terms(full: &alfd::core::Estimate, e: &alfd::core::Estimate) -> String {
+    let f = |x: Option<f64>| x.map_or("–".into(), |v| format!("{v:.2}"));
+    let (a, b) = (&full.spacing, &e.spacing);
+    format!(
+        "parallax {} → {}, unseen {} → {}, views {} → {}, permissible {} → {}",
+        f(a.parallax_m),
+        f(b.parallax_m),
+        f(a.unseen_m),
+        f(b.unseen_m),
+        f(a.views_m),
+        f(b.views_m),
+        f(a.permissible_m),
+        f(b.permissible_m)
+    )
+}
+
+impl Tally {
+    fn add(&mut self, x_m: f64, full: &alfd::core::Estimate, e: &alfd::core::Estimate) {
+        let err = relative_error(e.spacing.permissible_m, full.spacing.permissible_m);
+        self.errors.push(err);
+        self.levels.push(e.decimation);
+        if self.worst.as_ref().is_none_or(|w| err > w.1) {
+            self.worst = Some((x_m, err, terms(full, e)));
+        }
+    }
+}
+
+impl Tally {
+    fn row(&self, name: &str, read: Duration, budget: f64) {
+        let mut e = self.errors.clone();
+        e.sort_by(f64::total_cmp);
+        let at = |q: f64| e[((e.len() - 1) as f64 * q).round() as usize];
+        let over = e.iter().filter(|&&x| x > budget).count();
+        let mut levels = self.levels.clone();
+        levels.sort_unstable();
+        levels.dedup();
+        println!(
+            "| {name} | {:.2}× | {} | {:.2} % | {:.2} % | {:.2} % | {} of {} | {:?} |",
+            self.time.as_secs_f64() / read.as_secs_f64(),
+            self.calibrations,
+            100.0 * at(0.5),
+            100.0 * at(0.99),
+            100.0 * at(1.0),
+            over,
+            e.len(),
+            levels,
+        );
+    }
+}
+
+fn main() -> anyhow::Result<()> {
+    let mut paths: Vec<PathBuf> = std::env::args().skip(1).map(PathBuf::from).collect();
+    if paths.is_empty() {
+        paths = [
+            "roof",
+            "building",
+            "tree",
+            "canyon",
+            "edifice",
+            "open",
+            "courtyard",
+            "orchard",
+            "district",
+        ]
+        .iter()
+        .map(|s| PathBuf::from(format!("scenes/{s}.toml")))
+        .collect();
+    }
+    // The daemon's estimator as `alfd sim` configures it (`[quality] profile`).
+    let base: EstimatorParams =
+        alfd::config::Config::from_text("[quality]\nprofile = \"lightfield\"\n", "sim")?.estimator;
+    let Decimation::Auto { budget, levels, .. } = Decimation::auto() else {
+        unreachable!()
+    };
+    for path in &paths {
+        let scene = Scene::load(path)?;
+        let s = scene.survey.clone();
+        // The evaluation's sensor (2 mm, 131 m) where it reaches, else `alfd sim`'s 1 cm.
+        let far_m = s.altitude_m / s.pitch_rad.cos().max(0.2) * 2.0;
+        let sensor = if far_m <= 131.0 {
+            alfd::eval::eval_sensor()
+        } else {
+            SensorModel {
+                scale_m: 0.01,
+                max_range_m: 600.0,
+                ..SensorModel::default()
+            }
+        };
+        let step_m = s.speed_mps / FPS;
+        let n = ((s.end_x_m - s.start_x_m) / step_m).floor() as usize + 1;
+        let mut reference = Estimator::new(base.clone());
+        let mut auto: Vec<(u32, Estimator, Tally)> = PERIODS
+            .iter()
+            .map(|&p| {
+                let params = EstimatorParams {
+                    decimation: Decimation::Auto {
+                        budget,
+                        levels: levels.clone(),
+                        recalibrate_frames: p,
+                    },
+                    ..base.clone()
+                };
+                (p, Estimator::new(params), Tally::default())
+            })
+            .collect();
+        let mut fixed: Vec<(usize, Estimator, Tally)> = FIXED
+            .iter()
+            .map(|&l| (l, Estimator::new(base.clone()), Tally::default()))
+            .collect();
+        let mut read = Duration::ZERO;
+        for k in 0..n {
+            let x = s.start_x_m + k as f64 * step_m;
+            let cam = survey_camera(&scene, x, W, H);
+            let intr = alfd::core::Intrinsics::from_focal_px(
+                W,
+                H,
+                cam.intrinsics.focal_px(),
+                Some(cam.intrinsics.principal_px()),
+            )?;
+            let frame = Frame {
+                width: W,
+                height: H,
+                rgb: Vec::new(),
+                depth_m: render_depth(&scene, &cam),
+            };
+            let img = frame.z16(&sensor);
+            let DepthData::Z16 { data, .. } = img.data() else {
+                unreachable!()
+            };
+            let t = Instant::now();
+            black_box(black_box(data).iter().map(|&z| z as u64).sum::<u64>());
+            read += t.elapsed();
+            let truth = reference.estimate_at(&img, &intr, s.pitch_rad, 1)?;
+            for (_, est, tally) in auto.iter_mut() {
+                let t = Instant::now();
+                let (e, choice) = est.estimate(black_box(&img), &intr, s.pitch_rad)?;
+                tally.time += t.elapsed();
+                tally.calibrations += choice.is_some() as usize;
+                tally.add(x, &truth, &e);
+            }
+            for (level, est, tally) in fixed.iter_mut() {
+                let t = Instant::now();
+                let e = est.estimate_at(black_box(&img), &intr, s.pitch_rad, *level)?;
+                tally.time += t.elapsed();
+                tally.add(x, &truth, &e);
+            }
+        }
+        println!(
+            "\n{} ({n} frames, {:.0} m at {:.1} m/s, pitch {:.0}°; read {:.0} µs a frame)\n",
+            scene.name,
+            s.end_x_m - s.start_x_m,
+            s.speed_mps,
+            s.pitch_rad.to_degrees(),
+            read.as_secs_f64() * 1e6 / n as f64
+        );
+        println!("| decimation | time / read | calibrations | spacing error median | p99 | worst | frames over {:.0} % | levels used |", budget * 100.0);
+        println!("|---|---:|---:|---:|---:|---:|---:|---|");
+        for (level, _, tally) in &fixed {
+            tally.row(&format!("fixed {level}"), read, budget);
+        }
+        for (p, _, tally) in &auto {
+            let name = if *p == u32::MAX {
+                "auto, first frame only".to_string()
+            } else {
+                format!("auto, every {p} frames")
+            };
+            tally.row(&name, read, budget);
+        }
+        println!("\nWorst frame of each (x, error, each term's spacing at full resolution → as estimated, m):\n");
+        for (name, tally) in fixed
+            .iter()
+            .map(|(l, _, t)| (format!("fixed {l}"), t))
+            .chain(auto.iter().map(|(p, _, t)| (format!("auto {p}"), t)))
+        {
+            if let Some((x, err, terms)) = &tally.worst {
+                println!("- {name}: x = {x:.2} m, {:.1} %: {terms}", err * 100.0);
+            }
+        }
+    }
+    Ok(())
+}
