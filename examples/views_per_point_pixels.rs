@@ -19,6 +19,18 @@ use alfd::scene::Scene;
 use anyhow::Context;
 use std::path::PathBuf;
 
+/// A pixel: column, row, surface point, true visibility (m), the true run
+/// around the view (m from it), the number of runs, the sweep's interval.
+type Row = (
+    usize,
+    usize,
+    [f64; 3],
+    f64,
+    (f64, f64),
+    usize,
+    Option<Interval>,
+);
+
 fn main() -> anyhow::Result<()> {
     let mut args = std::env::args().skip(1);
     let path = PathBuf::from(args.next().unwrap_or_else(|| "scenes/orchard.toml".into()));
@@ -87,15 +99,7 @@ fn main() -> anyhow::Result<()> {
             rows.push((i, r, p, true_m, here, runs.len(), est[r * w + i]));
         }
     }
-    let show = |t: &(
-        usize,
-        usize,
-        [f64; 3],
-        f64,
-        (f64, f64),
-        usize,
-        Option<Interval>,
-    )| {
+    let show = |t: &Row| {
         let (i, r, p, true_m, here, runs, iv) = t;
         println!(
             "col {i:3} row {r:3}  point ({:7.2}, {:7.2}, {:5.2})  truth {true_m:6.2} m in {runs} run(s), {:+.2} … {:+.2} around the view  | estimator {}",
@@ -122,15 +126,7 @@ fn main() -> anyhow::Result<()> {
     rows.sort_by(|a, b| a.3.total_cmp(&b.3));
     println!("\nShortest true visibility (spacing = length / k):");
     rows.iter().take(12).for_each(show);
-    let est_len = |t: &(
-        usize,
-        usize,
-        [f64; 3],
-        f64,
-        (f64, f64),
-        usize,
-        Option<Interval>,
-    )| { t.6.map_or(f64::INFINITY, |iv| iv.length_m()) };
+    let est_len = |t: &Row| t.6.map_or(f64::INFINITY, |iv| iv.length_m());
     rows.sort_by(|a, b| est_len(a).total_cmp(&est_len(b)));
     println!("\nShortest estimated interval:");
     rows.iter().take(12).for_each(show);

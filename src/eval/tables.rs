@@ -283,7 +283,9 @@ pub fn markdown(results: &[SceneResult]) -> String {
     let _ = writeln!(s, "\nAccuracy of each model against the target spacing: |ln(prediction / empirical)| over segments with a bounded empirical value, mean / median / worst (number of segments). `visibility` is the daemon's default, the quality model (issue 13) with these targets, open loop from one frame: the largest spacing keeping the disparity span ≤ the parallax target (each pixel's own gain off nadir), the predicted unseen fraction ≤ target and every point of the middle half in ≥ k captures; the median view's (as the other models), and the tightest view's: the trigger applies the tightest spacing seen since the last capture, and the empirical spacing is the segment's worst in-between view's.\n");
     let _ = writeln!(s, "| model | held in | held out |");
     let _ = writeln!(s, "|---|---:|---:|");
-    let models: [(&str, fn(&Segment) -> Option<f64>); 5] = [
+    /// A model's prediction for a segment.
+    type Predicted = fn(&Segment) -> Option<f64>;
+    let models: [(&str, Predicted); 5] = [
         ("occlusion", |seg| seg.predicted_m[0]),
         ("mmds", |seg| seg.predicted_m[1]),
         ("sspa", |seg| seg.predicted_m[2]),
