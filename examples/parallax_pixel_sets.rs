@@ -43,17 +43,8 @@ fn main() -> anyhow::Result<()> {
     let scene = Scene::load(&path)?;
     let s = scene.survey.clone();
     let (w, h) = (s.width, s.height);
-    let cam0 = survey_camera(&scene, from_m, w, h);
-    let (cx, cy) = cam0.intrinsics.principal_px();
-    let f = cam0.intrinsics.focal_px();
-    let g = Geometry {
-        width: w,
-        height: h,
-        focal_px: f,
-        cx_px: cx,
-        cy_px: cy,
-        pitch_rad: s.pitch_rad,
-    };
+    let g = Geometry::of_survey(&scene, w, h);
+    let (f, cx, cy) = (g.focal_px, g.cx_px, g.cy_px);
     let intr = alfd::core::Intrinsics::from_focal_px(w, h, f, Some((cx, cy)))?;
     let sensor = eval_sensor();
     let mut est = Estimator::new(quality_params());

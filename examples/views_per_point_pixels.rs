@@ -41,16 +41,8 @@ fn main() -> anyhow::Result<()> {
     let s = scene.survey.clone();
     let (w, h) = (s.width, s.height);
     let cam = survey_camera(&scene, x_m, w, h);
-    let (cx, cy) = cam.intrinsics.principal_px();
-    let f = cam.intrinsics.focal_px();
-    let g = Geometry {
-        width: w,
-        height: h,
-        focal_px: f,
-        cx_px: cx,
-        cy_px: cy,
-        pitch_rad: s.pitch_rad,
-    };
+    let g = Geometry::of_survey(&scene, w, h);
+    let (f, cx, cy) = (g.focal_px, g.cx_px, g.cy_px);
     let intr = alfd::core::Intrinsics::from_focal_px(w, h, f, Some((cx, cy)))?;
     let frame = render(&scene, &cam, &RenderOptions { supersample: 2 });
     let img = frame.z16(&eval_sensor());

@@ -44,16 +44,7 @@ fn views(s: &Scene, x_m: f64, w: usize, h: usize, step: usize) -> (View, TruthVi
 }
 
 fn geometry(s: &Scene, w: usize, h: usize) -> Geometry {
-    let cam = survey_camera(s, 0.0, w, h);
-    let (cx, cy) = cam.intrinsics.principal_px();
-    Geometry {
-        width: w,
-        height: h,
-        focal_px: cam.intrinsics.focal_px(),
-        cx_px: cx,
-        cy_px: cy,
-        pitch_rad: s.survey.pitch_rad,
-    }
+    Geometry::of_survey(s, w, h)
 }
 
 /// Flat ground seen straight down: every point has the same disparity, so the

@@ -42,16 +42,8 @@ fn view(sc: &Scene, x: f64) -> View {
 }
 
 fn geometry(sc: &Scene) -> Geometry {
-    let cam = survey_camera(sc, 0.0, 96, 72);
-    let (cx, cy) = cam.intrinsics.principal_px();
-    Geometry {
-        width: 96,
-        height: 72,
-        focal_px: cam.intrinsics.focal_px(),
-        cx_px: cx,
-        cy_px: cy,
-        pitch_rad: 0.0,
-    }
+    assert_eq!(sc.survey.pitch_rad, 0.0, "these scenes are nadir");
+    Geometry::of_survey(sc, 96, 72)
 }
 
 #[test]

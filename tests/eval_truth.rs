@@ -47,17 +47,7 @@ fn view(scene: &Scene, x_m: f64) -> View {
 }
 
 fn geometry(scene: &Scene) -> Geometry {
-    let s = &scene.survey;
-    let cam = survey_camera(scene, s.start_x_m, s.width, s.height);
-    let (cx, cy) = cam.intrinsics.principal_px();
-    Geometry {
-        width: s.width,
-        height: s.height,
-        focal_px: cam.intrinsics.focal_px(),
-        cx_px: cx,
-        cy_px: cy,
-        pitch_rad: s.pitch_rad,
-    }
+    Geometry::of_survey(scene, scene.survey.width, scene.survey.height)
 }
 
 #[test]

@@ -929,16 +929,7 @@ pub fn evaluate_scene(
     let xs: Vec<f64> = (0..n)
         .map(|k| s.start_x_m + k as f64 * res.view_step_m)
         .collect();
-    let cam0 = survey_camera(scene, xs[0], res.width, res.height);
-    let (cx, cy) = cam0.intrinsics.principal_px();
-    let g = Geometry {
-        width: res.width,
-        height: res.height,
-        focal_px: cam0.intrinsics.focal_px(),
-        cx_px: cx,
-        cy_px: cy,
-        pitch_rad: s.pitch_rad,
-    };
+    let g = Geometry::of_survey(scene, res.width, res.height);
     pb.set_message(format!("{}: rendering {n} views", scene.name));
     pb.inc_length(n as u64);
     let opts = RenderOptions {
@@ -1327,7 +1318,7 @@ pub fn evaluate_scene(
     // `Model::Fixed` ignores the depth (one pixel will do) and applies the
     // config limits to `fixed_spacing_m`.
     let mut fixed = Estimator::new(method_params(Model::Fixed, safe_spacing_m));
-    let intr = cam0.intrinsics;
+    let intr = survey_camera(scene, xs[0], res.width, res.height).intrinsics;
     let depth0 = crate::core::DepthImage::new(
         1,
         1,

@@ -27,6 +27,22 @@ pub struct Geometry {
 }
 
 impl Geometry {
+    /// The geometry of `scene`'s survey camera at `width × height`: its intrinsics
+    /// (the same at every position along the line) and pitch.
+    pub fn of_survey(scene: &crate::scene::Scene, width: usize, height: usize) -> Geometry {
+        let s = &scene.survey;
+        let cam = crate::render::survey_camera(scene, s.start_x_m, width, height);
+        let (cx_px, cy_px) = cam.intrinsics.principal_px();
+        Geometry {
+            width,
+            height,
+            focal_px: cam.intrinsics.focal_px(),
+            cx_px,
+            cy_px,
+            pitch_rad: s.pitch_rad,
+        }
+    }
+
     #[inline]
     pub(crate) fn norm(&self, i: usize, r: usize) -> (f64, f64) {
         (
