@@ -296,10 +296,6 @@ const STALL_HALF_LIFE_NS: u64 = 1_000_000_000;
 const TYPICAL_HOLD_NS: u64 = 1_000_000_000;
 const TYPICAL_HALF_LIFE_NS: u64 = 4_000_000_000;
 
-/// The stored image of a captured frame, and whether it is the camera's own JPEG. An
-/// MJPEG frame is kept as it came (with the EXIF segment) when the format is JPEG and
-/// `keep_camera_jpeg`; one whose structure does not hold up is decoded and re-encoded
-/// instead, so it is either whole or refused with the decoder's reason.
 /// The intrinsics a record carries are [camera]'s: a frame of another size (a camera
 /// delivering another mode than configured) is not described by them. The image is kept
 /// and its intrinsics left out (an export then has none to guess from), and the first
@@ -332,6 +328,10 @@ struct Made {
     size: (u32, u32),
 }
 
+/// The stored image of a captured frame, whether it is the camera's own JPEG, and its
+/// size. An MJPEG frame is kept as it came (with the EXIF segment) when the format is
+/// JPEG and `keep_camera_jpeg`; one whose structure does not hold up is decoded and
+/// re-encoded instead, so it is either whole or refused with the decoder's reason.
 fn image_of(
     frame: &Stamped<RawColor>,
     format: ImageFormat,
