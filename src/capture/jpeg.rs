@@ -159,20 +159,24 @@ pub fn as_received(
     jpeg: &[u8],
     exif: impl FnOnce(u32, u32) -> Option<Vec<u8>>,
 ) -> Result<AsReceived, JpegError> {
-    // Segments before the scan, as (marker, whole segment).
-    let mut kept: Vec<(u8, &[u8])> = Vec::new();
+    // Segments before the scan, and the scan's own.
+    let mut kept: Vec<Segment> = Vec::new();
+    let mut scan = None;
     let mut size = None;
     let mut huffman_coded = false;
     let mut has_tables = false;
-    let mut scan_at = None;
     for segment in segments(jpeg) {
-        let Segment { at, marker, bytes } = segment?;
+        let segment = segment?;
+        let (at, marker) = (segment.at, segment.marker);
         match marker {
-            SOS => scan_at = Some(at),
+            SOS => {
+                scan = Some(segment);
+                continue;
+            }
             DHT => has_tables = true,
             // Frame headers: SOF0..SOF15 less DHT (C4), JPG (C8) and DAC (CC).
             0xC0..=0xCF if marker != 0xC8 && marker != 0xCC => {
-                let p = &bytes[4..];
+                let p = segment.payload();
                 if p.len() < 6 {
                     return Err(JpegError::BadFrameHeader {
                         at,
@@ -194,17 +198,13 @@ pub fn as_received(
             }
             _ => {}
         }
-        if marker != SOS {
-            kept.push((marker, bytes));
-        }
+        kept.push(segment);
     }
-    let scan_at = scan_at.ok_or(JpegError::NoScan)?;
-    let mut segments = kept;
+    let scan = scan.ok_or(JpegError::NoScan)?;
     let (width, height) = size.ok_or(JpegError::NoFrameHeader)?;
     // The entropy-coded data stuffs every 0xFF with a zero byte or a restart marker, so
     // the first FF D9 after the scan header ends the image.
-    let scan_header_end =
-        scan_at + 2 + u16::from_be_bytes([jpeg[scan_at + 2], jpeg[scan_at + 3]]) as usize;
+    let scan_header_end = scan.at + scan.bytes.len();
     let end = jpeg[scan_header_end..]
         .windows(2)
         .position(|w| w == [0xFF, EOI])
@@ -216,27 +216,27 @@ pub fn as_received(
         Some(p) => {
             let len = u16::try_from(p.len() + 2).map_err(|_| JpegError::ExifTooLong(p.len()))?;
             // Ours replaces the camera's.
-            segments.retain(|(m, s)| *m != APP1 || !s[4..].starts_with(EXIF_HEADER));
+            kept.retain(|s| s.marker != APP1 || !s.payload().starts_with(EXIF_HEADER));
             Some([&[0xFF, APP1][..], &len.to_be_bytes(), &p].concat())
         }
     };
     let tables_added = huffman_coded && !has_tables;
     let mut bytes = Vec::with_capacity(end + 512 + app1_segment.as_ref().map_or(0, Vec::len));
     bytes.extend_from_slice(&[0xFF, SOI]);
-    let leading_app0 = segments.iter().take_while(|(m, _)| *m == APP0).count();
-    for (_, s) in &segments[..leading_app0] {
-        bytes.extend_from_slice(s);
+    let leading_app0 = kept.iter().take_while(|s| s.marker == APP0).count();
+    for s in &kept[..leading_app0] {
+        bytes.extend_from_slice(s.bytes);
     }
     if let Some(s) = &app1_segment {
         bytes.extend_from_slice(s);
     }
-    for (_, s) in &segments[leading_app0..] {
-        bytes.extend_from_slice(s);
+    for s in &kept[leading_app0..] {
+        bytes.extend_from_slice(s.bytes);
     }
     if tables_added {
         bytes.extend_from_slice(&standard_tables_segment());
     }
-    bytes.extend_from_slice(&jpeg[scan_at..end]);
+    bytes.extend_from_slice(&jpeg[scan.at..end]);
     Ok(AsReceived {
         bytes,
         width,
