@@ -19,8 +19,8 @@ use std::time::{Duration, Instant};
 const W: usize = 640;
 const H: usize = 480;
 const FPS: f64 = 30.0;
-/// Recalibration periods studied, frames (`u32::MAX`: only the first frame).
-const PERIODS: [u32; 6] = [1, 30, 90, 150, 300, u32::MAX];
+/// Recalibration periods studied, frames (`usize::MAX`: only the first frame).
+const PERIODS: [usize; 6] = [1, 30, 90, 150, 300, usize::MAX];
 const FIXED: [usize; 5] = [1, 2, 4, 8, 16];
 
 #[derive(Default)]
@@ -126,7 +126,7 @@ fn main() -> anyhow::Result<()> {
         let step_m = s.speed_mps / FPS;
         let n = ((s.end_x_m - s.start_x_m) / step_m).floor() as usize + 1;
         let mut reference = Estimator::new(base.clone());
-        let mut auto: Vec<(u32, Estimator, Tally)> = PERIODS
+        let mut auto: Vec<(usize, Estimator, Tally)> = PERIODS
             .iter()
             .map(|&p| {
                 let params = EstimatorParams {
@@ -192,23 +192,24 @@ fn main() -> anyhow::Result<()> {
         );
         println!("| decimation | time / read | calibrations | spacing error median | p99 | worst | frames over {:.0} % | levels used |", budget * 100.0);
         println!("|---|---:|---:|---:|---:|---:|---:|---|");
-        for (level, _, tally) in &fixed {
-            tally.row(&format!("fixed {level}"), read, budget);
-        }
-        for (p, _, tally) in &auto {
-            let name = if *p == u32::MAX {
-                "auto, first frame only".to_string()
-            } else {
-                format!("auto, every {p} frames")
-            };
-            tally.row(&name, read, budget);
-        }
-        println!("\nWorst frame of each (x, error, each term's spacing at full resolution → as estimated, m):\n");
-        for (name, tally) in fixed
+        // Each row's name and tally: the fixed levels, then `auto` by period.
+        let rows: Vec<(String, &Tally)> = fixed
             .iter()
             .map(|(l, _, t)| (format!("fixed {l}"), t))
-            .chain(auto.iter().map(|(p, _, t)| (format!("auto {p}"), t)))
-        {
+            .chain(auto.iter().map(|(p, _, t)| {
+                let name = if *p == usize::MAX {
+                    "auto, first frame only".to_string()
+                } else {
+                    format!("auto, every {p} frames")
+                };
+                (name, t)
+            }))
+            .collect();
+        for (name, tally) in &rows {
+            tally.row(name, read, budget);
+        }
+        println!("\nWorst frame of each (x, error, each term's spacing at full resolution → as estimated, m):\n");
+        for (name, tally) in &rows {
             if let Some((x, err, terms)) = &tally.worst {
                 println!("- {name}: x = {x:.2} m, {:.1} %: {terms}", err * 100.0);
             }

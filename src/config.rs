@@ -400,12 +400,7 @@ impl RawConfig {
         }
         let budget = e.decimation_budget.unwrap_or(DECIMATION_BUDGET);
         let recalibrate_frames = match e.decimation_recalibrate_frames {
-            Some(v) => u32::try_from(v).map_err(|_| {
-                bad(
-                    "estimator.decimation_recalibrate_frames",
-                    format!("must be from 1 to 100000 frames, got {v}"),
-                )
-            })?,
+            Some(v) => count("estimator.decimation_recalibrate_frames", v)?,
             None => AUTO_RECALIBRATE_FRAMES,
         };
         let levels = match &e.decimation_levels {

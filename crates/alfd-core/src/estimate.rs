@@ -351,13 +351,11 @@ pub struct Estimator {
     auto: Option<AutoLevel>,
 }
 
-pub use super::params::AUTO_RECALIBRATE_FRAMES;
-
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct AutoLevel {
     level: usize,
     size: (usize, usize),
-    frames: u32,
+    frames: usize,
 }
 
 impl Estimator {

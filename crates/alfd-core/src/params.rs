@@ -134,7 +134,7 @@ pub enum Decimation {
     Auto {
         budget: f64,
         levels: Vec<usize>,
-        recalibrate_frames: u32,
+        recalibrate_frames: usize,
     },
 }
 
@@ -155,7 +155,7 @@ pub const DECIMATION_BUDGET: f64 = 0.05;
 /// Frames `Decimation::Auto` estimates at its calibrated level before calibrating again by
 /// default (a second at 30 fps): calibrating costs a full-resolution estimate, so doing it on
 /// every frame would cost more than never decimating (`docs/performance.md`).
-pub const AUTO_RECALIBRATE_FRAMES: u32 = 30;
+pub const AUTO_RECALIBRATE_FRAMES: usize = 30;
 
 pub const DECIMATION_LEVELS: [usize; 5] = [1, 2, 4, 8, 16];
 
