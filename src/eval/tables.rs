@@ -6,8 +6,8 @@
 use super::report::num;
 use super::truth::{Targets, CLASS_NAMES, DEFAULT_TARGETS};
 use super::{
-    SceneResult, Segment, SweepPoint, CALIBRATION_FIT, METHODS, PARALLAX_LEVELS_PX, RENDERERS,
-    UNSEEN_LEVELS,
+    SceneResult, Segment, SegmentTruth, SweepPoint, CALIBRATION_FIT, METHODS, PARALLAX_LEVELS_PX,
+    RENDERERS, UNSEEN_LEVELS,
 };
 use serde_json::{json, Map, Value};
 use std::fmt::Write;
@@ -71,6 +71,14 @@ pub fn targets_json(t: &Targets) -> Value {
     })
 }
 
+/// `ln(predicted / empirical)` of a segment's target spacing, where both are bounded.
+fn ln_error(t: &SegmentTruth, predicted_m: Option<f64>) -> Option<f64> {
+    match (predicted_m, t.target_m) {
+        (Some(p), Some(e)) if p.is_finite() && !t.target_at_least => Some((p / e).ln()),
+        _ => None,
+    }
+}
+
 /// `results.json`'s `segments` (DESIGN §4).
 pub fn segments_json(results: &[SceneResult]) -> Value {
     let mut out = Vec::new();
@@ -83,10 +91,7 @@ pub fn segments_json(results: &[SceneResult]) -> Value {
             }
             pred.insert("visibility".into(), onum(t.visibility_predicted_m));
             pred.insert("visibility_tightest".into(), onum(t.visibility_tightest_m));
-            let ln_err = |p: Option<f64>| match (p, t.target_m) {
-                (Some(p), Some(e)) if p.is_finite() && !t.target_at_least => num((p / e).ln()),
-                _ => Value::Null,
-            };
+            let ln_err = |p: Option<f64>| ln_error(t, p).map_or(Value::Null, num);
             out.push(json!({
                 "scene": r.name,
                 "held": held(&r.name),
@@ -302,10 +307,8 @@ pub fn markdown(results: &[SceneResult]) -> String {
                 .filter(|r| CALIBRATION_FIT.contains(&r.name.as_str()) == inside)
             {
                 for seg in &r.segments {
-                    if let (Some(p), Some(e)) = (predicted(seg), seg.truth.target_m) {
-                        if p.is_finite() && !seg.truth.target_at_least {
-                            v.push((p / e).ln().abs());
-                        }
+                    if let Some(e) = ln_error(&seg.truth, predicted(seg)) {
+                        v.push(e.abs());
                     }
                 }
             }
