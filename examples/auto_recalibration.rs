@@ -1,15 +1,15 @@
 //! What `decimation = "auto"`'s recalibration period buys and costs: along each
 //! scene's survey line, 640×480 Z16 depth every 1/30 s at the scene's speed (the
 //! daemon's 30 fps), the daemon's estimator (`[quality] profile = "lightfield"`, as `alfd sim`) with `auto`
-//! recalibrated every `P` frames, against the full-resolution estimate of the same
-//! frame. Per period: the estimator's time per frame as a ratio to reading the frame
+//! recalibrated every `P` frames, against the estimate of the same
+//! frame at full resolution, its sweep over every pixel. Per period: the estimator's time per frame as a ratio to reading the frame
 //! once (the sum of its u16 values, timed on the same frames in the same run), and the
 //! relative spacing error of every frame against full resolution (`docs/performance.md`):
 //! `cargo run --release --example auto_recalibration [-- scenes/district.toml ...]`
 //! (default: the eight evaluation scenes and `district`).
 
 use alfd::core::estimate::relative_error;
-use alfd::core::{Decimation, DepthData, Estimator, EstimatorParams};
+use alfd::core::{Decimation, DepthData, Estimator, EstimatorParams, VisibilityDecimation};
 use alfd::render::{render_depth, survey_camera, Frame, SensorModel};
 use alfd::scene::Scene;
 use std::hint::black_box;
@@ -32,6 +32,9 @@ struct Tally {
     /// The worst frame: its position, and each term's spacing at full
     /// resolution and as estimated.
     worst: Option<(f64, f64, String)>,
+    /// The largest relative excess over full resolution, and the frames over 5 %.
+    long: f64,
+    long_frames: usize,
 }
 
 /// Each term's spacing of two estimates, `full → estimated`, m.
@@ -55,6 +58,13 @@ impl Tally {
     fn add(&mut self, x_m: f64, full: &alfd::core::Estimate, e: &alfd::core::Estimate) {
         let err = relative_error(e.spacing.permissible_m, full.spacing.permissible_m);
         self.errors.push(err);
+        // The unsafe direction: a spacing longer than full resolution's.
+        if let (Some(a), Some(b)) = (e.spacing.permissible_m, full.spacing.permissible_m) {
+            if a > b {
+                self.long = self.long.max(a / b - 1.0);
+                self.long_frames += (a / b - 1.0 > 0.05) as usize;
+            }
+        }
         self.levels.push(e.decimation);
         if self.worst.as_ref().is_none_or(|w| err > w.1) {
             self.worst = Some((x_m, err, terms(full, e)));
@@ -72,7 +82,7 @@ impl Tally {
         levels.sort_unstable();
         levels.dedup();
         println!(
-            "| {name} | {:.2}× | {} | {:.2} % | {:.2} % | {:.2} % | {} of {} | {:?} |",
+            "| {name} | {:.2}× | {} | {:.2} % | {:.2} % | {:.2} % | {} of {} | {:.1} %, {} | {:?} |",
             self.time.as_secs_f64() / read.as_secs_f64(),
             self.calibrations,
             100.0 * at(0.5),
@@ -80,6 +90,8 @@ impl Tally {
             100.0 * at(1.0),
             over,
             e.len(),
+            100.0 * self.long,
+            self.long_frames,
             levels,
         );
     }
@@ -125,7 +137,12 @@ fn main() -> anyhow::Result<()> {
         };
         let step_m = s.speed_mps / FPS;
         let n = ((s.end_x_m - s.start_x_m) / step_m).floor() as usize + 1;
-        let mut reference = Estimator::new(base.clone());
+        // The reference sweeps every pixel (the daemon's own full estimate
+        // thins the sweep to `visibility_samples_max`: the row "fixed 1").
+        let mut reference = Estimator::new(EstimatorParams {
+            visibility_samples_max: usize::MAX,
+            ..base.clone()
+        });
         let mut auto: Vec<(usize, Estimator, Tally)> = PERIODS
             .iter()
             .map(|&p| {
@@ -143,6 +160,17 @@ fn main() -> anyhow::Result<()> {
         let mut fixed: Vec<(usize, Estimator, Tally)> = FIXED
             .iter()
             .map(|&l| (l, Estimator::new(base.clone()), Tally::default()))
+            .collect();
+        // The same levels with the sweep's `visibility_decimation = "bound"`.
+        let mut bound: Vec<(usize, Estimator, Tally)> = FIXED
+            .iter()
+            .map(|&l| {
+                let params = EstimatorParams {
+                    visibility_decimation: VisibilityDecimation::Bound,
+                    ..base.clone()
+                };
+                (l, Estimator::new(params), Tally::default())
+            })
             .collect();
         let mut read = Duration::ZERO;
         for k in 0..n {
@@ -175,7 +203,7 @@ fn main() -> anyhow::Result<()> {
                 tally.calibrations += choice.is_some() as usize;
                 tally.add(x, &truth, &e);
             }
-            for (level, est, tally) in fixed.iter_mut() {
+            for (level, est, tally) in fixed.iter_mut().chain(bound.iter_mut()) {
                 let t = Instant::now();
                 let e = est.estimate_at(black_box(&img), &intr, s.pitch_rad, *level)?;
                 tally.time += t.elapsed();
@@ -190,12 +218,17 @@ fn main() -> anyhow::Result<()> {
             s.pitch_rad.to_degrees(),
             read.as_secs_f64() * 1e6 / n as f64
         );
-        println!("| decimation | time / read | calibrations | spacing error median | p99 | worst | frames over {:.0} % | levels used |", budget * 100.0);
-        println!("|---|---:|---:|---:|---:|---:|---:|---|");
+        println!("| decimation | time / read | calibrations | spacing error median | p99 | worst | frames over {:.0} % | longer: worst, frames over 5 % | levels used |", budget * 100.0);
+        println!("|---|---:|---:|---:|---:|---:|---:|---:|---|");
         // Each row's name and tally: the fixed levels, then `auto` by period.
         let rows: Vec<(String, &Tally)> = fixed
             .iter()
             .map(|(l, _, t)| (format!("fixed {l}"), t))
+            .chain(
+                bound
+                    .iter()
+                    .map(|(l, _, t)| (format!("fixed {l}, sweep pooled (bound)"), t)),
+            )
             .chain(auto.iter().map(|(p, _, t)| {
                 let name = if *p == usize::MAX {
                     "auto, first frame only".to_string()

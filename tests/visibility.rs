@@ -5,7 +5,7 @@
 //! Cases per property: `ALFD_PROPTEST_CASES` (default 100000) divided by the
 //! cost of the check, as in `tests/properties.rs`.
 
-use alfd::core::inverse::{fill_grid, DepthRange, InvGrid};
+use alfd::core::inverse::{fill_grid, fill_grid_pooled, DepthRange, InvGrid};
 use alfd::core::visibility::{
     line_intervals, visibility, visibility_of_image, End, Interval, LineScratch, TrackRays,
     Visibility, VisibilityParams,
@@ -227,6 +227,61 @@ fn street_figures_hold_under_decimation() {
         assert!((v.unseen_at(10.0) - full.unseen_at(10.0)).abs() < 3.0 * step as f64 / 640.0);
         assert_eq!(v.lines, 48 / step as u64);
     }
+}
+
+/// A street narrower than a few decimated samples: a grid of centre samples
+/// skips its floor at some offsets and the views-per-point spacing comes out
+/// several times too long (as over `alfd sim`'s district at decimation 4);
+/// pooled, the floor is kept and the spacing is never longer than at pixel
+/// resolution by more than the travel that moves the occluding corner across
+/// one block (the one occluder pooling cannot place: inside the point's own
+/// block), while errors short stay within two blocks' travel plus the raise.
+#[test]
+fn pooled_decimation_keeps_narrow_gaps() {
+    let intr = Intrinsics::from_hfov_deg(640, 48, 90.0, None).unwrap();
+    let geom = intr.track(TrackAxis::Rows);
+    let p = VisibilityParams::default();
+    let k = p.views_per_point_min as f64;
+    let gap = 0.5;
+    let mut centre_long = 0usize;
+    for step in [2usize, 4, 8] {
+        // The travel, m, that moves the ray over a roof corner by one block.
+        let block_travel = step as f64 * (H - BLOCK) / intr.focal_px() * H / BLOCK;
+        for shift in 0..8 {
+            // About the nadir: the floor of a gap this deep is in view only
+            // from within a metre of it.
+            let centre = (shift as f64 - 4.0) * 0.023;
+            let img = street(BLOCK, gap, centre, H, &intr);
+            let full = visibility_of_image(&img, &intr, TrackAxis::Rows, 1, 0.0, &p);
+            let full_m = full.spacing_views_m.unwrap();
+            // The floor binds: g·H/(h·k), within a pixel's travel.
+            let floor = gap * H / (BLOCK * k);
+            assert!(
+                (full_m / floor - 1.0).abs() < 0.2,
+                "{full_m} against {floor}"
+            );
+            let mut g = InvGrid::default();
+            fill_grid_pooled(&img, TrackAxis::Rows, step, &DepthRange::default(), &mut g);
+            let pooled = visibility(&g, &geom, 0.0, &p);
+            let pooled_m = pooled.spacing_views_m.unwrap();
+            assert!(
+                pooled_m <= full_m + block_travel / k,
+                "step {step} shift {shift}: pooled {pooled_m} against {full_m} (+{})",
+                block_travel / k
+            );
+            assert!(
+                pooled_m > 0.0 && pooled_m >= full_m - 3.0 * block_travel / k,
+                "step {step} shift {shift}: pooled {pooled_m} against {full_m}"
+            );
+            assert_eq!(pooled.lines, 48 / step as u64);
+            let centre_m = visibility(&grid(&img, step), &geom, 0.0, &p)
+                .spacing_views_m
+                .unwrap();
+            centre_long += (centre_m > full_m + block_travel / k) as usize;
+        }
+    }
+    // What pooling mends: centre samples err long beyond the bound somewhere.
+    assert!(centre_long > 0);
 }
 
 /// A street along track hides nothing in the flight plane: the lines cross no

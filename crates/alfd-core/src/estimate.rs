@@ -4,10 +4,11 @@
 
 use super::depth::{DepthImage, Intrinsics, HORIZON_EPS};
 use super::inverse::{
-    fill_grid, fill_grid_counted, percentile_ranks, InvGrid, Selector, FAR, INVALID,
+    fill_grid, fill_grid_counted, fill_grid_pooled, percentile_ranks, InvGrid, Selector, FAR,
+    INVALID,
 };
 use super::occlusion::{scan, BoundaryParams, BoundaryStats};
-use super::params::{Decimation, EstimatorParams, GainModel, Model, Quality};
+use super::params::{Decimation, EstimatorParams, GainModel, Model, Quality, VisibilityDecimation};
 use super::plane::{fit, PlaneFit};
 use super::score::{best, score, PitchScore};
 use super::spacing::{
@@ -594,11 +595,25 @@ impl Estimator {
             // both ways. Thinning the lines alone (every sample along track)
             // was measured worse: the views bound is a minimum over lines, and
             // skipped lines miss the narrowest gap (docs/error-vs-runtime.md).
+            // `Bound` pools each block so that no interval comes out longer
+            // than at pixel resolution: centre samples skip the floors of
+            // narrow gaps, the shortest intervals, and erred long by up to 5×
+            // (docs/performance.md, "Decimation along a flight").
             let vstep = visibility_step(self.grid.samples(), step, p.visibility_samples_max);
-            let vgrid = if vstep == step {
+            let bound = p.visibility_decimation == VisibilityDecimation::Bound;
+            let vgrid = if vstep == 1 || (vstep == step && !bound) {
                 &self.grid
-            } else {
+            } else if !bound {
                 fill_grid(
+                    image,
+                    p.track_axis,
+                    vstep,
+                    &p.depth_range,
+                    &mut self.vis_grid,
+                );
+                &self.vis_grid
+            } else {
+                fill_grid_pooled(
                     image,
                     p.track_axis,
                     vstep,

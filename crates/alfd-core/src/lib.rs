@@ -28,7 +28,9 @@ pub use estimate::{
     estimate, Bound, Estimate, EstimateError, Estimator, NoEstimate, QualityPrediction,
     VisibilitySummary,
 };
-pub use params::{Decimation, EstimatorParams, Model, ParamError, Profile, Quality};
+pub use params::{
+    Decimation, EstimatorParams, Model, ParamError, Profile, Quality, VisibilityDecimation,
+};
 
 #[cfg(test)]
 mod tests;

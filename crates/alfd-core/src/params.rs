@@ -210,6 +210,24 @@ pub struct EstimatorParams {
     /// sample is ~25 reads, and at 640 × 480 it starved the daemon's camera
     /// and writer (docs/error-vs-runtime.md has the error it costs).
     pub visibility_samples_max: usize,
+    /// How a sweep coarser than a pixel samples the frame (`[estimator]
+    /// visibility_decimation`).
+    pub visibility_decimation: VisibilityDecimation,
+}
+
+/// How the visibility sweep thins a frame when it runs coarser than a pixel
+/// (decimation, or `visibility_samples_max`; docs/error-vs-runtime.md).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum VisibilityDecimation {
+    /// The centre pixel of each block (`"centre"`): unbiased for the unseen
+    /// fraction, but it skips gaps narrower than a block, whose floors hold
+    /// the shortest intervals, so the views bound can err long.
+    #[default]
+    Centre,
+    /// Each block pooled so that its interval lies within every pixel's
+    /// (`"bound"`: `visibility::sweep_line_pooled`): never longer than at
+    /// pixel resolution, shorter on slopes and walls.
+    Bound,
 }
 
 impl Default for EstimatorParams {
@@ -247,6 +265,7 @@ impl Default for EstimatorParams {
             sspa_iterations: 3,
             sspa_trim_sigma: 2.5,
             visibility_samples_max: 80_000,
+            visibility_decimation: VisibilityDecimation::Centre,
         }
     }
 }

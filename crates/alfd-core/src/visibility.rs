@@ -198,6 +198,100 @@ pub struct LineScratch {
     ahead: Vec<f64>,
     behind: Vec<f64>,
     stack: Vec<(f64, f64)>,
+    /// Pooled runs: per block, the point and the occluder as each direction
+    /// places them, and the tightest frustum ([`sweep_line_pooled`]).
+    pool_pts: [Vec<(f64, f64)>; 2],
+    pool_occ: [Vec<(f64, f64)>; 2],
+    pool_frustum: Vec<(f64, f64)>,
+    /// Per block, the point's ends behind and ahead from its own pixels.
+    pool_own: Vec<(f64, f64)>,
+    /// The pixels of the block being pooled.
+    block: Vec<PoolPixel>,
+}
+
+/// `slope(P, a) ≤ slope(P, b)` for `a`, `b` beyond `P`, without dividing.
+#[inline]
+fn not_above(p: (f64, f64), a: (f64, f64), b: (f64, f64)) -> bool {
+    (a.1 - p.1) * (b.0 - p.0) <= (b.1 - p.1) * (a.0 - p.0)
+}
+
+/// The vertex of the upper hull `stack` (its top, nearest `p`, also in `last`)
+/// with the steepest slope from `p`, a point before every vertex: along the
+/// chain from the top the slopes from `p` rise, then fall. The tangent is
+/// usually a vertex or two from the top: walk a few, then bisect the rest.
+#[inline]
+fn tangent_vertex(p: (f64, f64), stack: &[(f64, f64)], last: (f64, f64)) -> (f64, f64) {
+    // Chain order: c = 0 is the top (nearest), stack index len−1−c.
+    let top = stack.len() - 1;
+    let at = |c: usize| if c == 0 { last } else { stack[top - c] };
+    let mut lo = 0usize;
+    while lo < top.min(4) && !not_above(p, at(lo + 1), at(lo)) {
+        lo += 1;
+    }
+    if lo == 4 && lo < top {
+        let mut hi = top;
+        while lo < hi {
+            let mid = (lo + hi) / 2;
+            if not_above(p, at(mid + 1), at(mid)) {
+                hi = mid;
+            } else {
+                lo = mid + 1;
+            }
+        }
+    }
+    at(lo)
+}
+
+/// [`sweep`] with the occluders apart from the points: position `i` has the
+/// point `pts[i]` and the occluder `occ[i]` (a pooled block's farthest surface
+/// and its nearest, each where it errs short), both sorted by increasing `X`,
+/// every occluder of a later position beyond every earlier point (mirrored
+/// when `behind`). A point is hidden by the occluders of the positions beyond
+/// it, never by its own: that one lies within the point's block. With `occ`
+/// equal to `pts` it is [`sweep`]'s result (the same tangents, found without
+/// the point on the hull).
+fn sweep_pooled(
+    pts: &[(f64, f64)],
+    occ: &[(f64, f64)],
+    behind: bool,
+    margin: f64,
+    stack: &mut Vec<(f64, f64)>,
+    out: &mut Vec<f64>,
+) {
+    let n = pts.len().min(occ.len());
+    out.clear();
+    out.resize(pts.len(), f64::INFINITY);
+    stack.clear();
+    let sign = if behind { -1.0 } else { 1.0 };
+    // The highest occluder beyond the current point.
+    let mut y_beyond = f64::NEG_INFINITY;
+    let mut last = (0.0, 0.0);
+    for k in 0..n {
+        let i = if behind { k } else { n - 1 - k };
+        let x = sign * pts[i].0;
+        let pl = (x, pts[i].1 * (1.0 + margin));
+        // The tangent first, to the hull of the occluders beyond only.
+        if pl.1 < y_beyond {
+            let q = tangent_vertex(pl, stack, last);
+            let dy = q.1 - pl.1;
+            if dy > 0.0 {
+                out[i] = (q.0 - x).max(0.0) / dy;
+            }
+        }
+        let q = (sign * occ[i].0, occ[i].1);
+        while stack.len() >= 2 {
+            let b = stack[stack.len() - 2];
+            if not_above(q, last, b) {
+                stack.pop();
+                last = b;
+            } else {
+                break;
+            }
+        }
+        stack.push(q);
+        last = q;
+        y_beyond = y_beyond.max(q.1);
+    }
 }
 
 /// For points sorted by increasing `X` (`pts[i] = (X, Y)`), the camera
@@ -217,11 +311,6 @@ fn sweep(
     out.resize(n, f64::INFINITY);
     stack.clear();
     let sign = if behind { -1.0 } else { 1.0 };
-    // `slope(P, a) ≤ slope(P, b)` for `a`, `b` beyond `P`, without dividing.
-    #[inline]
-    fn not_above(p: (f64, f64), a: (f64, f64), b: (f64, f64)) -> bool {
-        (a.1 - p.1) * (b.0 - p.0) <= (b.1 - p.1) * (a.0 - p.0)
-    }
     // The highest `Y` of the points beyond `p` (all swept so far).
     let mut y_beyond = f64::NEG_INFINITY;
     // The top of the stack, also kept here: reading back the point pushed one
@@ -257,24 +346,7 @@ fn sweep(
             // slopes along the chain rise, then fall. A small lift moves it a
             // vertex or two: walk a few, then bisect the rest.
             // Chain order: c = 0 is the top (nearest), stack index len−1−c.
-            let top = stack.len() - 1;
-            let at = |c: usize| if c == 0 { last } else { stack[top - c] };
-            let mut lo = 0usize;
-            while lo < top.min(4) && !not_above(pl, at(lo + 1), at(lo)) {
-                lo += 1;
-            }
-            if lo == 4 && lo < top {
-                let mut hi = top;
-                while lo < hi {
-                    let mid = (lo + hi) / 2;
-                    if not_above(pl, at(mid + 1), at(mid)) {
-                        hi = mid;
-                    } else {
-                        lo = mid + 1;
-                    }
-                }
-            }
-            Some(at(lo))
+            Some(tangent_vertex(pl, stack, last))
         } else {
             (!stack.is_empty()).then_some(last)
         };
@@ -306,26 +378,29 @@ fn sweep_run(
     for (k, &j) in s.idx.iter().enumerate() {
         let d = 1.0 / line[j] as f64;
         let (f_lo, f_hi) = (d * rays.f_lo[j], d * rays.f_hi[j]);
-        let (o_lo, o_hi) = (-s.behind[k], s.ahead[k]);
-        let (from_m, from) = if o_lo > f_lo {
-            (o_lo, End::Occluder)
-        } else {
-            (f_lo, End::Frustum)
-        };
-        let (to_m, to) = if o_hi < f_hi {
-            (o_hi, End::Occluder)
-        } else {
-            (f_hi, End::Frustum)
-        };
-        emit(
-            j,
-            Interval {
-                from_m: from_m.min(0.0),
-                to_m: to_m.max(0.0),
-                from,
-                to,
-            },
-        );
+        emit(j, interval(f_lo, f_hi, -s.behind[k], s.ahead[k]));
+    }
+}
+
+/// A sample's interval from its frustum `f_lo ≤ 0 ≤ f_hi` and its occlusion
+/// ends `o_lo ≤ 0 ≤ o_hi`, m: the tighter end on each side.
+#[inline]
+fn interval(f_lo: f64, f_hi: f64, o_lo: f64, o_hi: f64) -> Interval {
+    let (from_m, from) = if o_lo > f_lo {
+        (o_lo, End::Occluder)
+    } else {
+        (f_lo, End::Frustum)
+    };
+    let (to_m, to) = if o_hi < f_hi {
+        (o_hi, End::Occluder)
+    } else {
+        (f_hi, End::Frustum)
+    };
+    Interval {
+        from_m: from_m.min(0.0),
+        to_m: to_m.max(0.0),
+        from,
+        to,
     }
 }
 
@@ -339,11 +414,7 @@ pub fn sweep_line(
     mut emit: impl FnMut(usize, Interval),
 ) {
     let n = line.len().min(rays.len());
-    let margin = if margin_rel.is_finite() {
-        margin_rel.max(0.0)
-    } else {
-        0.0
-    };
+    let margin = sanitize_margin(margin_rel);
     // Below the line `X` grows with the pixel index, above it (mirrored) it
     // falls: each run is visited in increasing `X`.
     for order in [&rays.below, &rays.above] {
@@ -358,6 +429,154 @@ pub fn sweep_line(
         }
         sweep_run(rays, line, margin, s, &mut emit);
     }
+}
+
+fn sanitize_margin(margin_rel: f64) -> f64 {
+    if margin_rel.is_finite() {
+        margin_rel.max(0.0)
+    } else {
+        0.0
+    }
+}
+
+/// [`sweep_line`] of a pooled line ([`crate::inverse::fill_grid_pooled`]):
+/// `line` the farthest surface of each pixel's lines across track, `near` the
+/// nearest, and `pool` pixels along track pooled into one block (per side of
+/// the flight line), which the sweep takes as one sample whose interval lies
+/// within every pixel's, for each of the pooled lines: the block's lowest
+/// farthest surface (`Y`) against every other block's highest nearest surface,
+/// each moved to the block's end where it errs short, and against every pair
+/// of its own pixels; its frustum the tightest of its pixels' at their nearest
+/// depth. A gap narrower than a block keeps its floor and its walls' tops,
+/// and no interval comes out longer than at pixel resolution; the price is a
+/// shorter one on slopes and walls (a block's rise counted over one pixel's
+/// run). `emit` gets each block's first pixel. `near: None` with `pool ≤ 1` is
+/// [`sweep_line`].
+pub fn sweep_line_pooled(
+    line: &[f32],
+    near: Option<&[f32]>,
+    pool: usize,
+    rays: &TrackRays,
+    margin_rel: f64,
+    s: &mut LineScratch,
+    mut emit: impl FnMut(usize, Interval),
+) {
+    let near = near.filter(|ne| ne.len() == line.len());
+    if near.is_none() && pool <= 1 {
+        return sweep_line(line, rays, margin_rel, s, emit);
+    }
+    let near = near.unwrap_or(line);
+    let pool = pool.max(1);
+    let n = line.len().min(rays.len());
+    let margin = sanitize_margin(margin_rel);
+    for order in [&rays.below, &rays.above] {
+        for v in s.pool_pts.iter_mut().chain(s.pool_occ.iter_mut()) {
+            v.clear();
+        }
+        s.pool_frustum.clear();
+        s.pool_own.clear();
+        s.idx.clear();
+        s.block.clear();
+        let mut block = usize::MAX;
+        let surface = order
+            .iter()
+            .copied()
+            .filter(|&j| j < n && line[j] > SKY && line[j].is_finite());
+        for j in surface.map(Some).chain(std::iter::once(None)) {
+            if j.is_none_or(|j| j / pool != block) && !s.block.is_empty() {
+                let px = std::mem::take(&mut s.block);
+                pool_block(&px, margin, s);
+                s.block = px;
+                s.block.clear();
+            }
+            let Some(j) = j else { break };
+            if j / pool != block {
+                block = j / pool;
+                s.idx.push(j);
+            }
+            let (w, g) = (line[j] as f64, rays.inv_g[j]);
+            let wn = (near[j] as f64).max(w);
+            s.block.push(PoolPixel {
+                x: rays.x[j],
+                y_far: w * g,
+                y_near: wn * g,
+                // The frustum at the nearest depth is the tightest of the pixel's.
+                lo: rays.f_lo[j] / wn,
+                hi: rays.f_hi[j] / wn,
+            });
+        }
+        if s.idx.is_empty() {
+            continue;
+        }
+        let (ahead, behind) = (&mut s.ahead, &mut s.behind);
+        sweep_pooled(
+            &s.pool_pts[0],
+            &s.pool_occ[0],
+            false,
+            margin,
+            &mut s.stack,
+            ahead,
+        );
+        sweep_pooled(
+            &s.pool_pts[1],
+            &s.pool_occ[1],
+            true,
+            margin,
+            &mut s.stack,
+            behind,
+        );
+        for (k, &j) in s.idx.iter().enumerate() {
+            let (f_lo, f_hi) = s.pool_frustum[k];
+            let (own_behind, own_ahead) = s.pool_own[k];
+            let (b, a) = (s.behind[k].min(own_behind), s.ahead[k].min(own_ahead));
+            emit(j, interval(f_lo, f_hi, -b, a));
+        }
+    }
+}
+
+/// One pixel of a pooled block, in the sweep's coordinates.
+#[derive(Debug, Clone, Copy)]
+struct PoolPixel {
+    x: f64,
+    y_far: f64,
+    y_near: f64,
+    lo: f64,
+    hi: f64,
+}
+
+/// Appends one block (pixels in increasing `X`) to the pooled run as a sample
+/// whose ends bound every pixel's: ahead, its point at the block's last `X`
+/// with the lowest `Y`, its occluder at the first `X` with the highest
+/// (behind the other way round); the tightest frustum; and the tightest ends
+/// any pixel of the block gets from another of its pixels (all pairs).
+fn pool_block(px: &[PoolPixel], margin: f64, s: &mut LineScratch) {
+    let (mut y_min, mut y_max) = (f64::INFINITY, f64::NEG_INFINITY);
+    let (mut f_lo, mut f_hi) = (f64::NEG_INFINITY, f64::INFINITY);
+    let (mut own_behind, mut own_ahead) = (f64::INFINITY, f64::INFINITY);
+    for (i, p) in px.iter().enumerate() {
+        y_min = y_min.min(p.y_far);
+        y_max = y_max.max(p.y_near);
+        f_lo = f_lo.max(p.lo);
+        f_hi = f_hi.min(p.hi);
+        let yl = p.y_far * (1.0 + margin);
+        for (k, q) in px.iter().enumerate() {
+            if k != i && q.y_near > yl {
+                let end = (q.x - p.x).abs() / (q.y_near - yl);
+                if k > i {
+                    own_ahead = own_ahead.min(end);
+                } else {
+                    own_behind = own_behind.min(end);
+                }
+            }
+        }
+    }
+    let (first, last) = (px[0].x, px[px.len() - 1].x);
+    s.pool_pts[0].push((last, y_min));
+    s.pool_occ[0].push((first, y_max));
+    s.pool_pts[1].push((first, y_min));
+    s.pool_occ[1].push((last, y_max));
+    s.pool_frustum.push((f_lo, f_hi));
+    s.pool_own.push((own_behind, own_ahead));
 }
 
 /// The intervals of one line, one entry per sample (`None`: invalid, sky, or on
@@ -635,8 +854,10 @@ pub fn visibility(
     for a in 0..grid.lines {
         let (mut surface, mut occluded) = (false, false);
         let counts = in_band.contains(&a);
-        sweep_line(
+        sweep_line_pooled(
             grid.line(a),
+            grid.near_line(a),
+            grid.pool_along,
             &rays,
             params.occluder_margin_rel,
             &mut scratch,
@@ -731,6 +952,180 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The pooled sweep against the brute-force tangent over the other
+    /// positions' occluders, each margin and direction.
+    fn assert_pooled_is_brute_force(x: &[f64], y: &[f64], occ: &[f64], margins: &[f64]) {
+        let pts: Vec<(f64, f64)> = x.iter().copied().zip(y.iter().copied()).collect();
+        for &margin in margins {
+            for behind in [false, true] {
+                let mut out = Vec::new();
+                let occ_pts: Vec<(f64, f64)> = x.iter().copied().zip(occ.iter().copied()).collect();
+                sweep_pooled(&pts, &occ_pts, behind, margin, &mut Vec::new(), &mut out);
+                for i in 0..x.len() {
+                    let yl = y[i] * (1.0 + margin);
+                    let others = if behind { 0..i } else { i + 1..x.len() };
+                    let brute = others
+                        .filter(|&q| occ[q] > yl)
+                        .map(|q| (x[q] - x[i]).abs() / (occ[q] - yl))
+                        .fold(f64::INFINITY, f64::min);
+                    assert!(
+                        (out[i] - brute).abs() <= 1e-12 * brute.abs().max(1.0)
+                            || (out[i].is_infinite() && brute.is_infinite()),
+                        "margin {margin} behind {behind} point {i}: pooled {} brute {brute}",
+                        out[i]
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn pooled_sweep_matches_brute_force() {
+        let mut s = 7u64;
+        let mut next = || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (s >> 40) as f64 / (1u64 << 24) as f64
+        };
+        for n in [1usize, 2, 3, 9, 40, 120] {
+            let x: Vec<f64> = (0..n).map(|i| i as f64 * 0.37 - 5.0).collect();
+            // Flat stretches, blocks and single posts; the occluder of a
+            // position at or above its point, often far above (a gap's wall).
+            let y: Vec<f64> = (0..n)
+                .map(|i| match (i / 5) % 4 {
+                    0 => 1.0,
+                    1 => 1.0 + next(),
+                    _ => 1.0 + 0.5 * next() * next(),
+                })
+                .collect();
+            let occ: Vec<f64> = y
+                .iter()
+                .map(|&v| match (next() * 3.0) as u32 {
+                    0 => v,
+                    1 => v * (1.0 + 1e-4 * next()),
+                    _ => v + next(),
+                })
+                .collect();
+            assert_pooled_is_brute_force(&x, &y, &occ, &[0.0, 1e-3, 0.2]);
+            // Occluders equal to the points: the plain sweep's tangents.
+            for margin in [0.0, 1e-3, 0.2] {
+                let pts: Vec<(f64, f64)> = x.iter().copied().zip(y.iter().copied()).collect();
+                for behind in [false, true] {
+                    let (mut a, mut b) = (Vec::new(), Vec::new());
+                    sweep(&pts, behind, margin, &mut Vec::new(), &mut a);
+                    sweep_pooled(&pts, &pts, behind, margin, &mut Vec::new(), &mut b);
+                    for (p, q) in a.iter().zip(&b) {
+                        assert!(
+                            (p - q).abs() <= 1e-12 * p.abs().max(1.0)
+                                || (p.is_infinite() && q.is_infinite()),
+                            "n {n} margin {margin} behind {behind}: {p} against {q}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    /// A pooled block's interval lies within the interval of each of its
+    /// pixels (each swept against every other pixel's nearest surface, no
+    /// pooling), on random lines with invalid pixels, sky, walls and gaps, at
+    /// nadir and tilted (runs above the flight line too); and pooling one
+    /// pixel whose nearest is itself is the plain sweep.
+    #[test]
+    fn pooled_blocks_lie_within_every_pixel_interval() {
+        use crate::depth::{Intrinsics, TrackAxis};
+        let n = 97;
+        let geom = Intrinsics::from_hfov_deg(n, 1, 100.0, None)
+            .unwrap()
+            .track(TrackAxis::Rows);
+        let idx: Vec<usize> = (0..n).collect();
+        let mut seed = 11u64;
+        let mut next = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 40) as f64 / (1u64 << 24) as f64
+        };
+        let mut checked = 0usize;
+        for pitch in [0.0, 0.35, -0.6, 1.1] {
+            let rays = TrackRays::new(&geom, &idx, pitch);
+            for trial in 0..40 {
+                let mut far = vec![0f32; n];
+                let mut near = vec![0f32; n];
+                let mut w = 0.02;
+                for j in 0..n {
+                    if next() < 0.1 {
+                        w = 0.01 + 0.05 * next();
+                    }
+                    far[j] = match (next() * 20.0) as u32 {
+                        0 => crate::inverse::INVALID,
+                        1 => SKY,
+                        _ => (w * (1.0 + 0.01 * next())) as f32,
+                    };
+                    near[j] = if far[j] > 0.0 && next() < 0.3 {
+                        far[j] * (1.0 + next() as f32)
+                    } else {
+                        far[j]
+                    };
+                }
+                for margin in [0.0, 1e-3] {
+                    let mut pixel = vec![None; n];
+                    let mut s = LineScratch::default();
+                    sweep_line_pooled(&far, Some(&near), 1, &rays, margin, &mut s, |j, iv| {
+                        pixel[j] = Some(iv)
+                    });
+                    if trial % 10 == 0 {
+                        // One pixel, nearest itself: the plain sweep.
+                        let mut plain = Vec::new();
+                        line_intervals(&far, &rays, margin, &mut s, &mut plain);
+                        let mut one = vec![None; n];
+                        sweep_line_pooled(&far, Some(&far), 1, &rays, margin, &mut s, |j, iv| {
+                            one[j] = Some(iv)
+                        });
+                        for (a, b) in plain.iter().zip(&one) {
+                            let close = |x: f64, y: f64| {
+                                x == y || (x - y).abs() <= 1e-12 * x.abs().max(1.0)
+                            };
+                            match (a, b) {
+                                (Some(a), Some(b)) => assert!(
+                                    close(a.from_m, b.from_m) && close(a.to_m, b.to_m),
+                                    "{a:?} against {b:?}"
+                                ),
+                                _ => assert_eq!(a.is_some(), b.is_some()),
+                            }
+                        }
+                    }
+                    for pool in [2usize, 3, 8, 16] {
+                        sweep_line_pooled(
+                            &far,
+                            Some(&near),
+                            pool,
+                            &rays,
+                            margin,
+                            &mut s,
+                            |j, iv| {
+                                for k in (j / pool) * pool..((j / pool + 1) * pool).min(n) {
+                                    if let (Some(p), true) =
+                                        (pixel[k], rays.side[k] == rays.side[j])
+                                    {
+                                        let tol = 1e-9 * (p.to_m - p.from_m).abs().max(1.0);
+                                        assert!(
+                                        iv.from_m >= p.from_m - tol && iv.to_m <= p.to_m + tol,
+                                        "pitch {pitch} pool {pool} block of {j}: {iv:?} outside pixel {k}'s {p:?}"
+                                    );
+                                        checked += 1;
+                                    }
+                                }
+                            },
+                        );
+                    }
+                }
+            }
+        }
+        assert!(checked > 10_000, "{checked}");
     }
 
     #[test]
