@@ -4,8 +4,7 @@
 
 use super::depth::{DepthImage, Intrinsics, HORIZON_EPS};
 use super::inverse::{
-    fill_grid, fill_grid_counted, fill_grid_pooled, percentile_ranks, InvGrid, Selector, FAR,
-    INVALID,
+    fill_grid, fill_grid_counted, percentile_ranks, InvGrid, Selector, FAR, INVALID,
 };
 use super::occlusion::{scan, BoundaryParams, BoundaryStats};
 use super::params::{Decimation, EstimatorParams, GainModel, Model, Quality, VisibilityDecimation};
@@ -595,25 +594,27 @@ impl Estimator {
             // both ways. Thinning the lines alone (every sample along track)
             // was measured worse: the views bound is a minimum over lines, and
             // skipped lines miss the narrowest gap (docs/error-vs-runtime.md).
-            // `Bound` pools each block so that no interval comes out longer
-            // than at pixel resolution: centre samples skip the floors of
-            // narrow gaps, the shortest intervals, and erred long by up to 5×
-            // (docs/performance.md, "Decimation along a flight").
+            // `Centre` sweeps the centre pixel of each block; `Bound` every
+            // line at full resolution, each run of `pool` pixels along it as one
+            // sample whose interval is the intersection of its pixels': centre
+            // samples skip the floors of narrow gaps, the shortest intervals,
+            // and erred long by up to 5× over `alfd sim`'s district
+            // (docs/performance.md, "Decimation along a flight"). Both sweep
+            // about as many samples.
             let vstep = visibility_step(self.grid.samples(), step, p.visibility_samples_max);
-            let bound = p.visibility_decimation == VisibilityDecimation::Bound;
-            let vgrid = if vstep == 1 || (vstep == step && !bound) {
+            let mut pool_along = 1;
+            let vgrid = if p.visibility_decimation == VisibilityDecimation::Bound && vstep > 1 {
+                pool_along = vstep * vstep;
+                if step == 1 {
+                    &self.grid
+                } else {
+                    fill_grid(image, p.track_axis, 1, &p.depth_range, &mut self.vis_grid);
+                    &self.vis_grid
+                }
+            } else if vstep == step {
                 &self.grid
-            } else if !bound {
-                fill_grid(
-                    image,
-                    p.track_axis,
-                    vstep,
-                    &p.depth_range,
-                    &mut self.vis_grid,
-                );
-                &self.vis_grid
             } else {
-                fill_grid_pooled(
+                fill_grid(
                     image,
                     p.track_axis,
                     vstep,
@@ -631,6 +632,7 @@ impl Estimator {
                     views_per_point_min: p.quality.views_per_point_min,
                     phases: DEFAULT_PHASES,
                     views_band: 0.5,
+                    pool_along,
                     ..VisibilityParams::default()
                 },
             );

@@ -64,13 +64,6 @@ pub struct InvGrid {
     hist: Vec<u32>,
     /// Whether `hist` counts the current samples.
     counted: bool,
-    /// The nearest inverse depth of each sample's pixels across track, when
-    /// the grid was pooled ([`fill_grid_pooled`]; `w` then holds their farthest
-    /// surface): the occluder a decimated visibility sweep must not skip.
-    /// Empty otherwise (each sample is then its own occluder).
-    pub near: Vec<f32>,
-    /// Samples along track the visibility sweep pools into one (1: none).
-    pub pool_along: usize,
 }
 
 impl InvGrid {
@@ -79,11 +72,6 @@ impl InvGrid {
     }
     pub fn samples(&self) -> usize {
         self.w.len()
-    }
-    /// Line `a` of [`InvGrid::near`], when the grid was pooled.
-    pub fn near_line(&self, a: usize) -> Option<&[f32]> {
-        (self.near.len() == self.w.len())
-            .then(|| &self.near[a * self.per_line..(a + 1) * self.per_line])
     }
 
     /// Exact order statistics (0-based `ranks`, ascending) of the grid's valid
@@ -219,132 +207,6 @@ pub fn fill_grid_counted(
     fill(image, axis, step, range, grid, true);
 }
 
-/// `image` pooled for a decimated visibility sweep: the lines of [`fill_grid`]
-/// at `step`, each holding every pixel along track, pooled over its `step`
-/// image lines across track: in `w` their farthest surface (the smallest
-/// positive inverse depth), in [`InvGrid::near`] their nearest. A pixel column
-/// with no surface holds `SKY` if any of its pixels is sky, else `INVALID` if
-/// any is, else `FAR`, in both. [`InvGrid::pool_along`] is `step`: the sweep
-/// pools along track itself, where it knows each pixel's ray
-/// ([`crate::visibility::visibility`]).
-///
-/// Why: the views-per-point bound is the shortest visibility interval of any
-/// sample, and the shortest intervals belong to the floors of gaps a few pixels
-/// wide, which a grid of centre samples skips (at decimation 4 the spacing came
-/// out up to 5× too long over `alfd sim`'s district, docs/performance.md).
-/// Every pixel of the covered lines is read once.
-pub fn fill_grid_pooled(
-    image: &DepthImage,
-    axis: TrackAxis,
-    step: usize,
-    range: &DepthRange,
-    grid: &mut InvGrid,
-) {
-    let step = step.max(1);
-    grid.counted = false;
-    let (w_img, h_img) = (image.width(), image.height());
-    let (along_extent, across_extent) = match axis {
-        TrackAxis::Rows => (w_img, h_img),
-        TrackAxis::Columns => (h_img, w_img),
-    };
-    grid.step = step;
-    grid.pool_along = step;
-    grid.along_idx = (0..along_extent).collect();
-    grid.across_idx = sample_indices(across_extent, step);
-    grid.per_line = along_extent;
-    grid.lines = grid.across_idx.len();
-    let n = grid.per_line * grid.lines;
-    // Image lines per pooled line: a frame narrower than `step` is one line of
-    // all of it (as `sample_indices` gives one sample).
-    let bl = step.min(across_extent);
-    let (per_line, lines) = (grid.per_line, grid.lines);
-    let mut row = vec![0f32; w_img];
-    let mut near = std::mem::take(&mut grid.near);
-    let mut far = std::mem::take(&mut grid.w);
-    // `near` is the largest value seen, markers included: they order as
-    // FAR < INVALID < SKY, the precedence the doc gives a column without surface.
-    near.clear();
-    near.resize(n, f32::NEG_INFINITY);
-    far.clear();
-    far.resize(n, f32::INFINITY);
-    let rows_used = match axis {
-        TrackAxis::Rows => lines * bl,
-        TrackAxis::Columns => h_img,
-    };
-    for y in 0..rows_used {
-        match image.data() {
-            DepthData::Z16 { data, scale_m } => {
-                let key = [
-                    scale_m.to_bits(),
-                    range.min_m.to_bits(),
-                    range.max_m.to_bits(),
-                ];
-                if grid.lut_key != Some(key) {
-                    let (lut, valid) = z16_table(*scale_m, range);
-                    grid.lut = lut;
-                    grid.lut_valid = valid;
-                    grid.lut_key = Some(key);
-                }
-                let table: &[f32; 65536] = grid.lut.as_slice().try_into().expect("65536 entries");
-                for (o, &z) in row.iter_mut().zip(&data[y * w_img..(y + 1) * w_img]) {
-                    *o = table[z as usize];
-                }
-            }
-            DepthData::Metres(data) => {
-                for (o, &d) in row.iter_mut().zip(&data[y * w_img..(y + 1) * w_img]) {
-                    *o = inv_from_metres(d, range);
-                }
-            }
-        }
-        match axis {
-            // One pooled line per `bl` image rows: an element-wise fold.
-            TrackAxis::Rows => {
-                let a = y / bl;
-                let ne = &mut near[a * per_line..(a + 1) * per_line];
-                let fa = &mut far[a * per_line..(a + 1) * per_line];
-                for ((ne, fa), &w) in ne.iter_mut().zip(fa.iter_mut()).zip(&row) {
-                    fold(ne, fa, w);
-                }
-            }
-            // Image row `y` is along-track sample `y` of every pooled line.
-            TrackAxis::Columns => {
-                for (a, px) in row[..lines * bl].chunks_exact(bl).enumerate() {
-                    let k = a * per_line + y;
-                    for &w in px {
-                        fold(&mut near[k], &mut far[k], w);
-                    }
-                }
-            }
-        }
-    }
-    // A column without surface: `near` holds its largest marker.
-    for (f, &ne) in far.iter_mut().zip(&near) {
-        if *f == f32::INFINITY {
-            *f = ne;
-        }
-    }
-    let (mut valid, mut sky, mut nfar) = (0usize, 0usize, 0usize);
-    for &w in &far {
-        valid += (w >= 0.0) as usize;
-        sky += (w == SKY) as usize;
-        nfar += (w == FAR) as usize;
-    }
-    grid.w = far;
-    grid.near = near;
-    grid.valid = valid;
-    grid.sky = sky;
-    grid.far = nfar;
-}
-
-/// Folds one pixel into a nearest (largest value, markers included) and a
-/// farthest surface (smallest positive; `+∞` while none).
-#[inline]
-fn fold(near: &mut f32, far: &mut f32, w: f32) {
-    *near = if w > *near { w } else { *near };
-    let pos = if w > SKY { w } else { f32::INFINITY };
-    *far = if pos < *far { pos } else { *far };
-}
-
 /// Below this many samples the radix selection over the samples is cheaper
 /// than clearing and scanning 65,536 counters (both are exact).
 pub const COUNT_MIN_SAMPLES: usize = 1 << 15;
@@ -359,9 +221,6 @@ fn fill(
 ) {
     let step = step.max(1);
     grid.counted = false;
-    // Not pooled: each sample is its own occluder.
-    grid.near.clear();
-    grid.pool_along = 1;
     let (w_img, h_img) = (image.width(), image.height());
     let (along_extent, across_extent) = match axis {
         TrackAxis::Rows => (w_img, h_img),
@@ -720,81 +579,5 @@ mod tests {
         // A later plain fill drops the count of the earlier frame.
         fill_grid(&big, TrackAxis::Rows, 1, &DepthRange::default(), &mut g);
         assert!(!g.counted);
-    }
-
-    /// Each pooled sample's farthest surface and nearest value against a
-    /// direct walk of its pixels across track: both axes, sizes `step` does
-    /// not divide, a frame narrower than a block, no-return and saturated
-    /// pixels, a depth range, and metre frames with sky, NaN and negative depths.
-    #[test]
-    fn pooled_lines_hold_their_farthest_and_nearest() {
-        let range = DepthRange {
-            min_m: 6.0,
-            max_m: 25.0,
-        };
-        let metres = {
-            let (w, h) = (37usize, 23usize);
-            let d: Vec<f32> = (0..w * h)
-                .map(|i| match i % 17 {
-                    0 => f32::INFINITY,
-                    5 => f32::NAN,
-                    9 => -1.0,
-                    _ => 4.0 + (i * 7 % 29) as f32,
-                })
-                .collect();
-            DepthImage::new(w, h, DepthData::Metres(d)).unwrap()
-        };
-        let frames = [z16_frame(70, 45, 3), z16_frame(3, 50, 4), metres];
-        for img in &frames {
-            for range in [DepthRange::default(), range] {
-                for axis in [TrackAxis::Rows, TrackAxis::Columns] {
-                    let mut plain = InvGrid::default();
-                    fill_grid(img, axis, 1, &range, &mut plain);
-                    assert!(plain.near_line(0).is_none());
-                    assert_eq!(plain.pool_along, 1);
-                    for step in [1usize, 2, 4, 5, 16] {
-                        let mut g = InvGrid::default();
-                        fill_grid_pooled(img, axis, step, &range, &mut g);
-                        let mut centre = InvGrid::default();
-                        fill_grid(img, axis, step, &range, &mut centre);
-                        assert_eq!(g.across_idx, centre.across_idx);
-                        assert_eq!(g.along_idx, plain.along_idx);
-                        assert_eq!(g.pool_along, step);
-                        let bl = step.min(plain.lines);
-                        for a in 0..g.lines {
-                            let near = g.near_line(a).expect("pooled");
-                            for j in 0..g.per_line {
-                                let px: Vec<f32> =
-                                    (a * bl..(a + 1) * bl).map(|l| plain.line(l)[j]).collect();
-                                let surf = px.iter().copied().filter(|&w| w > SKY);
-                                let want_far = surf.clone().fold(f32::INFINITY, f32::min);
-                                let want_near = surf.fold(f32::NEG_INFINITY, f32::max);
-                                let marker = if px.contains(&SKY) {
-                                    SKY
-                                } else if px.contains(&INVALID) {
-                                    INVALID
-                                } else {
-                                    FAR
-                                };
-                                let (got_far, got_near) = (g.line(a)[j], near[j]);
-                                if want_far.is_finite() {
-                                    assert_eq!((got_far, got_near), (want_far, want_near));
-                                } else {
-                                    assert_eq!((got_far, got_near), (marker, marker));
-                                }
-                            }
-                        }
-                        let valid = g.w.iter().filter(|&&w| w >= 0.0).count();
-                        assert_eq!(g.valid, valid);
-                    }
-                    // A later plain fill is no longer pooled.
-                    let mut g = InvGrid::default();
-                    fill_grid_pooled(img, axis, 4, &range, &mut g);
-                    fill_grid(img, axis, 4, &range, &mut g);
-                    assert!(g.near_line(0).is_none());
-                    assert_eq!(g.pool_along, 1);
-                }
-            }
-        }
     }
 }

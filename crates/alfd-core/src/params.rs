@@ -224,9 +224,11 @@ pub enum VisibilityDecimation {
     /// the shortest intervals, so the views bound can err long.
     #[default]
     Centre,
-    /// Each block pooled so that its interval lies within every pixel's
-    /// (`"bound"`: `visibility::sweep_line_pooled`): never longer than at
-    /// pixel resolution, shorter on slopes and walls.
+    /// Every line at full resolution, runs of pixels along it swept as one
+    /// sample whose interval is the intersection of its pixels' (`"bound"`:
+    /// `visibility::sweep_line_pooled`; a run of `step²` pixels, about as many
+    /// samples as `Centre`): never longer than at pixel resolution, shorter
+    /// where a run holds pixels hidden on opposite sides.
     Bound,
 }
 
