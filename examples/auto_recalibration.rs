@@ -9,7 +9,7 @@
 //! (default: the eight evaluation scenes and `district`).
 
 use alfd::core::estimate::relative_error;
-use alfd::core::{Decimation, DepthData, Estimator, EstimatorParams, VisibilityDecimation};
+use alfd::core::{Decimation, DepthData, Estimator, EstimatorParams};
 use alfd::render::{render_depth, survey_camera, Frame, SensorModel};
 use alfd::scene::Scene;
 use std::hint::black_box;
@@ -161,17 +161,6 @@ fn main() -> anyhow::Result<()> {
             .iter()
             .map(|&l| (l, Estimator::new(base.clone()), Tally::default()))
             .collect();
-        // The same levels with the sweep's `visibility_decimation = "bound"`.
-        let mut bound: Vec<(usize, Estimator, Tally)> = FIXED
-            .iter()
-            .map(|&l| {
-                let params = EstimatorParams {
-                    visibility_decimation: VisibilityDecimation::Bound,
-                    ..base.clone()
-                };
-                (l, Estimator::new(params), Tally::default())
-            })
-            .collect();
         let mut read = Duration::ZERO;
         for k in 0..n {
             let x = s.start_x_m + k as f64 * step_m;
@@ -203,7 +192,7 @@ fn main() -> anyhow::Result<()> {
                 tally.calibrations += choice.is_some() as usize;
                 tally.add(x, &truth, &e);
             }
-            for (level, est, tally) in fixed.iter_mut().chain(bound.iter_mut()) {
+            for (level, est, tally) in fixed.iter_mut() {
                 let t = Instant::now();
                 let e = est.estimate_at(black_box(&img), &intr, s.pitch_rad, *level)?;
                 tally.time += t.elapsed();
@@ -224,11 +213,6 @@ fn main() -> anyhow::Result<()> {
         let rows: Vec<(String, &Tally)> = fixed
             .iter()
             .map(|(l, _, t)| (format!("fixed {l}"), t))
-            .chain(
-                bound
-                    .iter()
-                    .map(|(l, _, t)| (format!("fixed {l}, sweep pooled (bound)"), t)),
-            )
             .chain(auto.iter().map(|(p, _, t)| {
                 let name = if *p == usize::MAX {
                     "auto, first frame only".to_string()

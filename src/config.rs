@@ -10,7 +10,7 @@ use crate::core::params::{
     Decimation, GainModel, AUTO_RECALIBRATE_FRAMES, DECIMATION_BUDGET, DECIMATION_LEVELS,
 };
 use crate::core::trigger::TriggerParams;
-use crate::core::{EstimatorParams, Model, ParamError, Profile, TrackAxis, VisibilityDecimation};
+use crate::core::{EstimatorParams, Model, ParamError, Profile, TrackAxis};
 use crate::link::{LinkConfig, RawLinkConfig};
 use crate::source::select::DeviceSelector;
 use serde::Deserialize;
@@ -213,7 +213,6 @@ pub struct RawEstimator {
     pub sspa_iterations: Option<i64>,
     pub sspa_trim_sigma: Option<f64>,
     pub visibility_samples_max: Option<i64>,
-    pub visibility_decimation: Option<String>,
 }
 
 #[derive(Debug, Default, Deserialize)]
@@ -374,18 +373,6 @@ impl RawConfig {
         };
         if let Some(d) = e.pitch_max_deg {
             p.pitch_max_rad = d.to_radians();
-        }
-        if let Some(v) = &e.visibility_decimation {
-            p.visibility_decimation = match v.as_str() {
-                "centre" => VisibilityDecimation::Centre,
-                "bound" => VisibilityDecimation::Bound,
-                other => {
-                    return Err(bad(
-                        "estimator.visibility_decimation",
-                        format!("unknown way {other:?}: use \"centre\" or \"bound\""),
-                    ))
-                }
-            };
         }
         if let Some(a) = &e.track_axis {
             p.track_axis = match a.as_str() {
@@ -893,15 +880,6 @@ mod tests {
     }
 
     #[test]
-    fn an_unknown_visibility_decimation_names_the_field() {
-        let e = Config::from_text("[estimator]\nvisibility_decimation = \"max\"\n", "x.toml")
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("estimator.visibility_decimation"), "{e}");
-        assert!(e.contains("\"centre\" or \"bound\""), "{e}");
-    }
-
-    #[test]
     fn empty_config_is_the_defaults() {
         let c = Config::from_text("", "x.toml").unwrap();
         assert_eq!(c.estimator, EstimatorParams::default());
@@ -912,7 +890,7 @@ mod tests {
         let c = Config::from_text(
             "[sampling]\nmodel = \"sspa\"\nocclusion_max = 0.02\nalso = [\"occlusion\"]\n\
              [estimator]\ndecimation = \"auto\"\ndecimation_budget = 0.1\ndecimation_recalibrate_frames = 90\n\
-             track_axis = \"columns\"\nvisibility_decimation = \"bound\"\n\
+             track_axis = \"columns\"\n\
              [score]\npitch_candidates_deg = [-10.0, 10.0, 10.0]\n",
             "x.toml",
         )
@@ -922,7 +900,6 @@ mod tests {
         assert_eq!(c.occlusion_max, 0.02);
         assert!(c.with_occlusion);
         assert_eq!(c.track_axis, TrackAxis::Columns);
-        assert_eq!(c.visibility_decimation, VisibilityDecimation::Bound);
         assert!(
             matches!(c.decimation, Decimation::Auto { budget, recalibrate_frames, .. }
             if budget == 0.1 && recalibrate_frames == 90)

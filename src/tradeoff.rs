@@ -3,9 +3,7 @@
 //! the core only computes.
 
 use crate::core::estimate::relative_error;
-use crate::core::{
-    DepthImage, Estimator, EstimatorParams, Intrinsics, Model, VisibilityDecimation,
-};
+use crate::core::{DepthImage, Estimator, EstimatorParams, Intrinsics, Model};
 use std::time::Instant;
 
 /// One depth frame to measure on.
@@ -177,13 +175,12 @@ pub fn markdown(frames: &[Frame], rows: &[Row]) -> String {
     s
 }
 
-/// The visibility sweep's own sampling (`estimator.visibility_samples_max`),
-/// each way of thinning (`estimator.visibility_decimation`): for each cap,
-/// the relative error of the views-per-point and unseen-fraction spacings
-/// against the sweep on every sample of the estimate's grid, the largest
-/// excess of the views spacing over it (the unsafe direction), and the time of
-/// the whole quality estimate, per frame. Both profiles' targets (the mapping
-/// profile's k = 3 makes the views bound bind on more frames).
+/// The visibility sweep's own sampling (`estimator.visibility_samples_max`):
+/// for each cap, the relative error of the views-per-point and unseen-fraction
+/// spacings against the sweep on every sample of the estimate's grid, the
+/// largest excess of the views spacing over it (the unsafe direction), and the
+/// time of the whole quality estimate, per frame. Both profiles' targets (the
+/// mapping profile's k = 3 makes the views bound bind on more frames).
 pub fn visibility_markdown(
     frames: &[Frame],
     base: &EstimatorParams,
@@ -191,10 +188,9 @@ pub fn visibility_markdown(
     repeats: usize,
 ) -> String {
     use std::fmt::Write;
-    let params = |cap: usize, way: VisibilityDecimation| EstimatorParams {
+    let params = |cap: usize| EstimatorParams {
         model: Model::Quality,
         visibility_samples_max: cap,
-        visibility_decimation: way,
         score: None,
         with_sspa: false,
         with_occlusion: false,
@@ -205,7 +201,7 @@ pub fn visibility_markdown(
             .ok()
             .map_or((None, None), |e| (e.spacing.views_m, e.spacing.unseen_m))
     };
-    let mut full = Estimator::new(params(usize::MAX, VisibilityDecimation::Centre));
+    let mut full = Estimator::new(params(usize::MAX));
     let reference: Vec<_> = frames.iter().map(|f| spacings(&mut full, f)).collect();
     let full_us: Vec<f64> = frames
         .iter()
@@ -214,54 +210,43 @@ pub fn visibility_markdown(
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "| visibility samples (max) | thinning | views spacing error (mean / max) | views spacing longer (worst) | unseen spacing error (mean / max) | time per frame (µs) | speed-up vs every sample |"
+        "| visibility samples (max) | views spacing error (mean / max) | views spacing longer (worst) | unseen spacing error (mean / max) | time per frame (µs) | speed-up vs every sample |"
     );
-    let _ = writeln!(s, "|---:|---|---:|---:|---:|---:|---:|");
+    let _ = writeln!(s, "|---:|---:|---:|---:|---:|---:|");
     for &cap in caps {
-        let ways: &[VisibilityDecimation] = if cap == usize::MAX {
-            &[VisibilityDecimation::Centre]
-        } else {
-            &[VisibilityDecimation::Centre, VisibilityDecimation::Bound]
-        };
-        for &way in ways {
-            let mut est = Estimator::new(params(cap, way));
-            let (mut ve, mut ue, mut t, mut longer) = (Vec::new(), Vec::new(), 0.0, 0.0f64);
-            for (k, f) in frames.iter().enumerate() {
-                let (v, u) = spacings(&mut est, f);
-                ve.push(relative_error(v, reference[k].0));
-                ue.push(relative_error(u, reference[k].1));
-                if let (Some(v), Some(r)) = (v, reference[k].0) {
-                    longer = longer.max(v / r - 1.0);
-                }
-                t += time_us(&mut est, f, 1, repeats);
+        let mut est = Estimator::new(params(cap));
+        let (mut ve, mut ue, mut t, mut longer) = (Vec::new(), Vec::new(), 0.0, 0.0f64);
+        for (k, f) in frames.iter().enumerate() {
+            let (v, u) = spacings(&mut est, f);
+            ve.push(relative_error(v, reference[k].0));
+            ue.push(relative_error(u, reference[k].1));
+            if let (Some(v), Some(r)) = (v, reference[k].0) {
+                longer = longer.max(v / r - 1.0);
             }
-            let n = frames.len().max(1) as f64;
-            let stats = |e: &[f64]| {
-                format!(
-                    "{} / {}",
-                    pct(e.iter().sum::<f64>() / n),
-                    pct(e.iter().cloned().fold(0.0, f64::max))
-                )
-            };
-            let label = if cap == usize::MAX {
-                "every sample".to_string()
-            } else {
-                cap.to_string()
-            };
-            let way = match way {
-                VisibilityDecimation::Centre => "centre",
-                VisibilityDecimation::Bound => "bound",
-            };
-            let _ = writeln!(
-                s,
-                "| {label} | {way} | {} | {} | {} | {:.0} | {:.1}× |",
-                stats(&ve),
-                pct(longer),
-                stats(&ue),
-                t / n,
-                full_us.iter().sum::<f64>() / t
-            );
+            t += time_us(&mut est, f, 1, repeats);
         }
+        let n = frames.len().max(1) as f64;
+        let stats = |e: &[f64]| {
+            format!(
+                "{} / {}",
+                pct(e.iter().sum::<f64>() / n),
+                pct(e.iter().cloned().fold(0.0, f64::max))
+            )
+        };
+        let label = if cap == usize::MAX {
+            "every sample".to_string()
+        } else {
+            cap.to_string()
+        };
+        let _ = writeln!(
+            s,
+            "| {label} | {} | {} | {} | {:.0} | {:.1}× |",
+            stats(&ve),
+            pct(longer),
+            stats(&ue),
+            t / n,
+            full_us.iter().sum::<f64>() / t
+        );
     }
     s
 }

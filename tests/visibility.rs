@@ -229,69 +229,6 @@ fn street_figures_hold_under_decimation() {
     }
 }
 
-/// A street narrower than a few decimated samples: a grid of centre samples
-/// skips its floor at some offsets and the views-per-point spacing comes out
-/// several times too long (as over `alfd sim`'s district at decimation 4);
-/// pooled (every line, runs of pixels along it as one sample, each the
-/// intersection of its pixels' intervals) it is never longer than at pixel
-/// resolution, and shorter by at most what one run's pixels on either side of
-/// a wall's foot explain (the travel over one run at the roofs).
-#[test]
-fn pooled_decimation_keeps_narrow_gaps() {
-    let intr = Intrinsics::from_hfov_deg(640, 48, 90.0, None).unwrap();
-    let geom = intr.track(TrackAxis::Rows);
-    let p = VisibilityParams::default();
-    let k = p.views_per_point_min as f64;
-    let gap = 0.5;
-    let mut centre_long = 0usize;
-    for step in [2usize, 4, 8] {
-        let pool = step * step;
-        // The travel, m, that moves the ray over a roof corner by one run.
-        let run_travel = pool as f64 * (H - BLOCK) / intr.focal_px() * H / BLOCK;
-        for shift in 0..8 {
-            // About the nadir: the floor of a gap this deep is in view only
-            // from within a metre of it.
-            let centre = (shift as f64 - 4.0) * 0.023;
-            let img = street(BLOCK, gap, centre, H, &intr);
-            let full_grid = grid(&img, 1);
-            let full = visibility(&full_grid, &geom, 0.0, &p);
-            let full_m = full.spacing_views_m.unwrap();
-            // The floor binds: g·H/(h·k), within a pixel's travel.
-            let floor = gap * H / (BLOCK * k);
-            assert!(
-                (full_m / floor - 1.0).abs() < 0.2,
-                "{full_m} against {floor}"
-            );
-            let pooled = visibility(
-                &full_grid,
-                &geom,
-                0.0,
-                &VisibilityParams {
-                    pool_along: pool,
-                    ..p
-                },
-            );
-            let pooled_m = pooled.spacing_views_m.unwrap();
-            assert!(
-                pooled_m <= full_m * (1.0 + 1e-9),
-                "step {step} shift {shift}: pooled {pooled_m} against {full_m}"
-            );
-            assert!(
-                pooled_m >= full_m - run_travel / k,
-                "step {step} shift {shift}: pooled {pooled_m} against {full_m} (-{})",
-                run_travel / k
-            );
-            assert_eq!(pooled.lines, 48);
-            let centre_m = visibility(&grid(&img, step), &geom, 0.0, &p)
-                .spacing_views_m
-                .unwrap();
-            centre_long += (centre_m > full_m * 1.5) as usize;
-        }
-    }
-    // What pooling mends: centre samples err long, by half and more, somewhere.
-    assert!(centre_long > 0);
-}
-
 /// A street along track hides nothing in the flight plane: the lines cross no
 /// occluder, the term is left out, and the views are the footprint's.
 #[test]
@@ -641,15 +578,13 @@ fn params() -> impl Strategy<Value = VisibilityParams> {
         0u32..6,
         0usize..24,
         prop_oneof![3 => 0.0f64..0.05, 1 => Just(f64::NAN), 1 => Just(f64::INFINITY)],
-        prop_oneof![3 => Just(1usize), 1 => Just(0), 2 => 2usize..20],
     )
-        .prop_map(|(u, k, phases, margin, pool)| VisibilityParams {
+        .prop_map(|(u, k, phases, margin)| VisibilityParams {
             unseen_fraction_max: u,
             views_per_point_min: k,
             phases,
             occluder_margin_rel: margin,
             views_band: 1.0,
-            pool_along: pool,
         })
 }
 

@@ -244,6 +244,14 @@ max_range_m = {range}
 [quality]
 profile = "{profile}"
 
+[estimator]
+# The visibility sweep on every pixel: thinned to the flight default (80,000
+# samples, every second pixel both ways) it skips the floors of the gaps
+# between the district's houses and the views-per-point spacing came out up
+# to 5.3x too long on 20 % of the frames (docs/performance.md). The bench has
+# the CPU; on a drone it is `visibility_samples_max`'s trade.
+visibility_samples_max = {pixels}
+
 [sampling]
 model = "{model}"
 
@@ -261,6 +269,7 @@ jpeg_quality = 90
         hz = a.telemetry_hz,
         w = a.width,
         h = a.height,
+        pixels = (a.width * a.height).max(100),
         fps = a.fps,
         hfov = scene.survey.hfov_deg,
         pitch = scene.survey.pitch_rad.to_degrees(),

@@ -1,10 +1,11 @@
 //! The truth track: noise-free depth rendered at each true pose, through one
-//! estimator in pose order (as the daemon runs it). Rendering is parallel,
-//! estimating sequential.
+//! estimator in pose order (as the daemon runs it). Rendering is parallel;
+//! estimating too when the decimation is fixed (no state between frames),
+//! else sequential.
 
 use super::{TrackSample, TruthPose};
 use crate::core::attitude::{body_to_ned, flight_axis};
-use crate::core::{DepthData, DepthImage, Estimator, EstimatorParams, Intrinsics};
+use crate::core::{Decimation, DepthData, DepthImage, Estimator, EstimatorParams, Intrinsics};
 use crate::render::{render_depth, Camera};
 use crate::scene::Scene;
 use glam::{DMat3, DVec3};
@@ -21,6 +22,43 @@ pub fn truth_estimates(
     params: &EstimatorParams,
     poses: &[TruthPose],
 ) -> Vec<TrackSample> {
+    // The scan axis and tilt at pose `k`, from the true attitude and the
+    // direction of flight between the neighbouring poses (as the daemon's).
+    let axis_pitch = |k: usize| {
+        let p = &poses[k];
+        let (a, b) = (
+            &poses[k.saturating_sub(1)],
+            &poses[(k + 1).min(poses.len() - 1)],
+        );
+        let dt_s = b.mono_ns.saturating_sub(a.mono_ns) as f64 * 1e-9;
+        let vel = if dt_s > 0.0 {
+            DVec3::new(
+                (b.north_m - a.north_m) / dt_s,
+                (b.east_m - a.east_m) / dt_s,
+                0.0,
+            )
+        } else {
+            DVec3::ZERO
+        };
+        flight_axis(&cam_to_ned(&p.camera), vel, params.track_axis)
+    };
+    // A fixed decimation keeps no state from frame to frame: the poses are
+    // estimated in parallel, one estimator per worker, with the same results.
+    if matches!(params.decimation, Decimation::Fixed(_)) {
+        return (0..poses.len())
+            .into_par_iter()
+            .map_init(
+                || Estimator::new(params.clone()),
+                |estimator, k| {
+                    let p = &poses[k];
+                    let depth = render_depth(scene, &camera(p, intrinsics));
+                    let (axis, pitch_rad) = axis_pitch(k);
+                    estimator.set_track_axis(axis);
+                    sample(estimator, p, intrinsics, depth, pitch_rad)
+                },
+            )
+            .collect();
+    }
     let mut estimator = Estimator::new(params.clone());
     let mut out = Vec::with_capacity(poses.len());
     for (c, chunk) in poses.chunks(CHUNK).enumerate() {
@@ -29,24 +67,7 @@ pub fn truth_estimates(
             .map(|p| render_depth(scene, &camera(p, intrinsics)))
             .collect();
         for (i, (p, depth)) in chunk.iter().zip(depths).enumerate() {
-            // The daemon's scan axis and tilt, from the true attitude and the
-            // direction of flight between the neighbouring poses.
-            let k = c * CHUNK + i;
-            let (a, b) = (
-                &poses[k.saturating_sub(1)],
-                &poses[(k + 1).min(poses.len() - 1)],
-            );
-            let dt_s = b.mono_ns.saturating_sub(a.mono_ns) as f64 * 1e-9;
-            let vel = if dt_s > 0.0 {
-                DVec3::new(
-                    (b.north_m - a.north_m) / dt_s,
-                    (b.east_m - a.east_m) / dt_s,
-                    0.0,
-                )
-            } else {
-                DVec3::ZERO
-            };
-            let (axis, pitch_rad) = flight_axis(&cam_to_ned(&p.camera), vel, params.track_axis);
+            let (axis, pitch_rad) = axis_pitch(c * CHUNK + i);
             estimator.set_track_axis(axis);
             out.push(sample(&mut estimator, p, intrinsics, depth, pitch_rad));
         }

@@ -7,7 +7,7 @@ use super::inverse::{
     fill_grid, fill_grid_counted, percentile_ranks, InvGrid, Selector, FAR, INVALID,
 };
 use super::occlusion::{scan, BoundaryParams, BoundaryStats};
-use super::params::{Decimation, EstimatorParams, GainModel, Model, Quality, VisibilityDecimation};
+use super::params::{Decimation, EstimatorParams, GainModel, Model, Quality};
 use super::plane::{fit, PlaneFit};
 use super::score::{best, score, PitchScore};
 use super::spacing::{
@@ -594,24 +594,8 @@ impl Estimator {
             // both ways. Thinning the lines alone (every sample along track)
             // was measured worse: the views bound is a minimum over lines, and
             // skipped lines miss the narrowest gap (docs/error-vs-runtime.md).
-            // `Centre` sweeps the centre pixel of each block; `Bound` every
-            // line at full resolution, each run of `pool` pixels along it as one
-            // sample whose interval is the intersection of its pixels': centre
-            // samples skip the floors of narrow gaps, the shortest intervals,
-            // and erred long by up to 5× over `alfd sim`'s district
-            // (docs/performance.md, "Decimation along a flight"). Both sweep
-            // about as many samples.
             let vstep = visibility_step(self.grid.samples(), step, p.visibility_samples_max);
-            let mut pool_along = 1;
-            let vgrid = if p.visibility_decimation == VisibilityDecimation::Bound && vstep > 1 {
-                pool_along = vstep * vstep;
-                if step == 1 {
-                    &self.grid
-                } else {
-                    fill_grid(image, p.track_axis, 1, &p.depth_range, &mut self.vis_grid);
-                    &self.vis_grid
-                }
-            } else if vstep == step {
+            let vgrid = if vstep == step {
                 &self.grid
             } else {
                 fill_grid(
@@ -632,7 +616,6 @@ impl Estimator {
                     views_per_point_min: p.quality.views_per_point_min,
                     phases: DEFAULT_PHASES,
                     views_band: 0.5,
-                    pool_along,
                     ..VisibilityParams::default()
                 },
             );

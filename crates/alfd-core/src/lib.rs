@@ -28,9 +28,7 @@ pub use estimate::{
     estimate, Bound, Estimate, EstimateError, Estimator, NoEstimate, QualityPrediction,
     VisibilitySummary,
 };
-pub use params::{
-    Decimation, EstimatorParams, Model, ParamError, Profile, Quality, VisibilityDecimation,
-};
+pub use params::{Decimation, EstimatorParams, Model, ParamError, Profile, Quality};
 
 #[cfg(test)]
 mod tests;

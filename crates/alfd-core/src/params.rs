@@ -210,26 +210,6 @@ pub struct EstimatorParams {
     /// sample is ~25 reads, and at 640 × 480 it starved the daemon's camera
     /// and writer (docs/error-vs-runtime.md has the error it costs).
     pub visibility_samples_max: usize,
-    /// How a sweep coarser than a pixel samples the frame (`[estimator]
-    /// visibility_decimation`).
-    pub visibility_decimation: VisibilityDecimation,
-}
-
-/// How the visibility sweep thins a frame when it runs coarser than a pixel
-/// (decimation, or `visibility_samples_max`; docs/error-vs-runtime.md).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum VisibilityDecimation {
-    /// The centre pixel of each block (`"centre"`): unbiased for the unseen
-    /// fraction, but it skips gaps narrower than a block, whose floors hold
-    /// the shortest intervals, so the views bound can err long.
-    #[default]
-    Centre,
-    /// Every line at full resolution, runs of pixels along it swept as one
-    /// sample whose interval is the intersection of its pixels' (`"bound"`:
-    /// `visibility::sweep_line_pooled`; a run of `step²` pixels, about as many
-    /// samples as `Centre`): never longer than at pixel resolution, shorter
-    /// where a run holds pixels hidden on opposite sides.
-    Bound,
 }
 
 impl Default for EstimatorParams {
@@ -267,7 +247,6 @@ impl Default for EstimatorParams {
             sspa_iterations: 3,
             sspa_trim_sigma: 2.5,
             visibility_samples_max: 80_000,
-            visibility_decimation: VisibilityDecimation::Centre,
         }
     }
 }

@@ -29,9 +29,6 @@ pub struct VisibilityParams {
     /// occluders beside the line, and points at the lateral edges are side
     /// overlap's business, not the spacing's (the truth samples the middle half).
     pub views_band: f64,
-    /// Pixels along track swept as one sample, each sample's interval the
-    /// intersection of its pixels' ([`sweep_line_pooled`]; 1: every sample).
-    pub pool_along: usize,
 }
 
 impl Default for VisibilityParams {
@@ -42,7 +39,6 @@ impl Default for VisibilityParams {
             phases: DEFAULT_PHASES,
             occluder_margin_rel: 1e-3,
             views_band: 1.0,
-            pool_along: 1,
         }
     }
 }
@@ -202,134 +198,6 @@ pub struct LineScratch {
     ahead: Vec<f64>,
     behind: Vec<f64>,
     stack: Vec<(f64, f64)>,
-    /// Pooled runs: every block's lower hull (its points) and upper hull (its
-    /// occluders), flattened, with
-    /// each block's ranges into them; its tightest frustum; and the ends its
-    /// own pixels give it (behind, ahead) ([`sweep_line_pooled`]).
-    pool_lower: Vec<(f64, f64)>,
-    pool_upper: Vec<(f64, f64)>,
-    pool_ranges: Vec<[usize; 4]>,
-    pool_frustum: Vec<(f64, f64)>,
-    pool_own: Vec<(f64, f64)>,
-    /// The pixels of the block being pooled.
-    block: Vec<PoolPixel>,
-}
-
-/// `slope(P, a) ≤ slope(P, b)` for `a`, `b` beyond `P`, without dividing.
-#[inline]
-fn not_above(p: (f64, f64), a: (f64, f64), b: (f64, f64)) -> bool {
-    (a.1 - p.1) * (b.0 - p.0) <= (b.1 - p.1) * (a.0 - p.0)
-}
-
-/// The vertex of the upper hull `stack` (its top, nearest `p`, also in `last`)
-/// with the steepest slope from `p`, a point before every vertex: along the
-/// chain from the top the slopes from `p` rise, then fall. The tangent is
-/// usually a vertex or two from the top: walk a few, then bisect the rest.
-#[inline]
-fn tangent_vertex(p: (f64, f64), stack: &[(f64, f64)], last: (f64, f64)) -> (f64, f64) {
-    // Chain order: c = 0 is the top (nearest), stack index len−1−c.
-    let top = stack.len() - 1;
-    let at = |c: usize| if c == 0 { last } else { stack[top - c] };
-    let mut lo = 0usize;
-    while lo < top.min(4) && !not_above(p, at(lo + 1), at(lo)) {
-        lo += 1;
-    }
-    if lo == 4 && lo < top {
-        let mut hi = top;
-        while lo < hi {
-            let mid = (lo + hi) / 2;
-            if not_above(p, at(mid + 1), at(mid)) {
-                hi = mid;
-            } else {
-                lo = mid + 1;
-            }
-        }
-    }
-    at(lo)
-}
-
-/// [`sweep`] over blocks: block `i` has the points `lower[r[0]..r[1]]` and
-/// the occluders `upper[r[2]..r[3]]` (`r = ranges[i]`), each sorted by
-/// increasing `X`, blocks disjoint and in increasing `X`. `out[i]` is the least
-/// end of the block's points against the occluders of the blocks beyond it
-/// (before it, mirrored, when `behind`), never its own. Exact when `lower`
-/// holds the lower hull of a block's points and `upper` the upper hull of its
-/// occluders: the steepest slope from any point to a convex chain ahead is
-/// taken at a vertex of the points' lower hull, and only the occluders' upper
-/// hull can be a tangent.
-fn sweep_blocks(
-    lower: &[(f64, f64)],
-    upper: &[(f64, f64)],
-    ranges: &[[usize; 4]],
-    behind: bool,
-    margin: f64,
-    stack: &mut Vec<(f64, f64)>,
-    out: &mut Vec<f64>,
-) {
-    let n = ranges.len();
-    out.clear();
-    out.resize(n, f64::INFINITY);
-    stack.clear();
-    let sign = if behind { -1.0 } else { 1.0 };
-    // The highest occluder beyond the current block.
-    let mut y_beyond = f64::NEG_INFINITY;
-    let mut last = (0.0, 0.0);
-    let push = |v: &(f64, f64), stack: &mut Vec<(f64, f64)>, last: &mut (f64, f64)| {
-        let q = (sign * v.0, v.1);
-        while stack.len() >= 2 {
-            let b = stack[stack.len() - 2];
-            if not_above(q, *last, b) {
-                stack.pop();
-                *last = b;
-            } else {
-                break;
-            }
-        }
-        stack.push(q);
-        *last = q;
-    };
-    for k in 0..n {
-        let i = if behind { k } else { n - 1 - k };
-        let [l0, l1, u0, u1] = ranges[i];
-        // The tangents first, to the hull of the occluders beyond only.
-        for v in &lower[l0..l1] {
-            let x = sign * v.0;
-            let pl = (x, v.1 * (1.0 + margin));
-            if pl.1 < y_beyond {
-                let q = tangent_vertex(pl, stack, last);
-                let dy = q.1 - pl.1;
-                if dy > 0.0 {
-                    out[i] = out[i].min((q.0 - x).max(0.0) / dy);
-                }
-            }
-        }
-        // Then the block's occluders, farthest from the points still to come first.
-        let verts = &upper[u0..u1];
-        if behind {
-            verts.iter().for_each(|v| push(v, stack, &mut last));
-        } else {
-            verts.iter().rev().for_each(|v| push(v, stack, &mut last));
-        }
-        y_beyond = verts.iter().fold(y_beyond, |m, v| m.max(v.1));
-    }
-}
-
-/// Appends the lower (`upper = false`) or upper convex hull of `pts` (sorted
-/// by increasing, distinct `X`) to `out`.
-fn hull_into(pts: impl Iterator<Item = (f64, f64)>, upper: bool, out: &mut Vec<(f64, f64)>) {
-    let start = out.len();
-    for p in pts {
-        while out.len() >= start + 2 {
-            let (o, a) = (out[out.len() - 2], out[out.len() - 1]);
-            let cross = (a.0 - o.0) * (p.1 - o.1) - (a.1 - o.1) * (p.0 - o.0);
-            if (upper && cross >= 0.0) || (!upper && cross <= 0.0) {
-                out.pop();
-            } else {
-                break;
-            }
-        }
-        out.push(p);
-    }
 }
 
 /// For points sorted by increasing `X` (`pts[i] = (X, Y)`), the camera
@@ -349,6 +217,11 @@ fn sweep(
     out.resize(n, f64::INFINITY);
     stack.clear();
     let sign = if behind { -1.0 } else { 1.0 };
+    // `slope(P, a) ≤ slope(P, b)` for `a`, `b` beyond `P`, without dividing.
+    #[inline]
+    fn not_above(p: (f64, f64), a: (f64, f64), b: (f64, f64)) -> bool {
+        (a.1 - p.1) * (b.0 - p.0) <= (b.1 - p.1) * (a.0 - p.0)
+    }
     // The highest `Y` of the points beyond `p` (all swept so far).
     let mut y_beyond = f64::NEG_INFINITY;
     // The top of the stack, also kept here: reading back the point pushed one
@@ -384,7 +257,24 @@ fn sweep(
             // slopes along the chain rise, then fall. A small lift moves it a
             // vertex or two: walk a few, then bisect the rest.
             // Chain order: c = 0 is the top (nearest), stack index len−1−c.
-            Some(tangent_vertex(pl, stack, last))
+            let top = stack.len() - 1;
+            let at = |c: usize| if c == 0 { last } else { stack[top - c] };
+            let mut lo = 0usize;
+            while lo < top.min(4) && !not_above(pl, at(lo + 1), at(lo)) {
+                lo += 1;
+            }
+            if lo == 4 && lo < top {
+                let mut hi = top;
+                while lo < hi {
+                    let mid = (lo + hi) / 2;
+                    if not_above(pl, at(mid + 1), at(mid)) {
+                        hi = mid;
+                    } else {
+                        lo = mid + 1;
+                    }
+                }
+            }
+            Some(at(lo))
         } else {
             (!stack.is_empty()).then_some(last)
         };
@@ -416,29 +306,26 @@ fn sweep_run(
     for (k, &j) in s.idx.iter().enumerate() {
         let d = 1.0 / line[j] as f64;
         let (f_lo, f_hi) = (d * rays.f_lo[j], d * rays.f_hi[j]);
-        emit(j, interval(f_lo, f_hi, -s.behind[k], s.ahead[k]));
-    }
-}
-
-/// A sample's interval from its frustum `f_lo ≤ 0 ≤ f_hi` and its occlusion
-/// ends `o_lo ≤ 0 ≤ o_hi`, m: the tighter end on each side.
-#[inline]
-fn interval(f_lo: f64, f_hi: f64, o_lo: f64, o_hi: f64) -> Interval {
-    let (from_m, from) = if o_lo > f_lo {
-        (o_lo, End::Occluder)
-    } else {
-        (f_lo, End::Frustum)
-    };
-    let (to_m, to) = if o_hi < f_hi {
-        (o_hi, End::Occluder)
-    } else {
-        (f_hi, End::Frustum)
-    };
-    Interval {
-        from_m: from_m.min(0.0),
-        to_m: to_m.max(0.0),
-        from,
-        to,
+        let (o_lo, o_hi) = (-s.behind[k], s.ahead[k]);
+        let (from_m, from) = if o_lo > f_lo {
+            (o_lo, End::Occluder)
+        } else {
+            (f_lo, End::Frustum)
+        };
+        let (to_m, to) = if o_hi < f_hi {
+            (o_hi, End::Occluder)
+        } else {
+            (f_hi, End::Frustum)
+        };
+        emit(
+            j,
+            Interval {
+                from_m: from_m.min(0.0),
+                to_m: to_m.max(0.0),
+                from,
+                to,
+            },
+        );
     }
 }
 
@@ -452,7 +339,11 @@ pub fn sweep_line(
     mut emit: impl FnMut(usize, Interval),
 ) {
     let n = line.len().min(rays.len());
-    let margin = sanitize_margin(margin_rel);
+    let margin = if margin_rel.is_finite() {
+        margin_rel.max(0.0)
+    } else {
+        0.0
+    };
     // Below the line `X` grows with the pixel index, above it (mirrored) it
     // falls: each run is visited in increasing `X`.
     for order in [&rays.below, &rays.above] {
@@ -467,140 +358,6 @@ pub fn sweep_line(
         }
         sweep_run(rays, line, margin, s, &mut emit);
     }
-}
-
-fn sanitize_margin(margin_rel: f64) -> f64 {
-    if margin_rel.is_finite() {
-        margin_rel.max(0.0)
-    } else {
-        0.0
-    }
-}
-
-/// [`sweep_line`] with every `pool` pixels along track (per side of the flight
-/// line) taken as one sample, whose interval is the intersection of its
-/// pixels' intervals: each end the least any of its pixels has, found exactly
-/// from the lower hull of the block's points against the upper hulls of the
-/// other blocks (a flat or sloping block has two vertices), its own pixels by
-/// all pairs, its frustum the tightest of its pixels'. So a gap narrower than
-/// a block keeps its floor, and no interval comes out longer than any of its
-/// block's pixels' at full resolution. `emit` gets each block's first pixel.
-/// `pool ≤ 1` is [`sweep_line`].
-pub fn sweep_line_pooled(
-    line: &[f32],
-    pool: usize,
-    rays: &TrackRays,
-    margin_rel: f64,
-    s: &mut LineScratch,
-    mut emit: impl FnMut(usize, Interval),
-) {
-    if pool <= 1 {
-        return sweep_line(line, rays, margin_rel, s, emit);
-    }
-    let n = line.len().min(rays.len());
-    let margin = sanitize_margin(margin_rel);
-    for order in [&rays.below, &rays.above] {
-        s.pool_lower.clear();
-        s.pool_upper.clear();
-        s.pool_ranges.clear();
-        s.pool_frustum.clear();
-        s.pool_own.clear();
-        s.idx.clear();
-        s.block.clear();
-        let mut block = usize::MAX;
-        let surface = order
-            .iter()
-            .copied()
-            .filter(|&j| j < n && line[j] > SKY && line[j].is_finite());
-        for j in surface.map(Some).chain(std::iter::once(None)) {
-            if j.is_none_or(|j| j / pool != block) && !s.block.is_empty() {
-                let px = std::mem::take(&mut s.block);
-                pool_block(&px, margin, s);
-                s.block = px;
-                s.block.clear();
-            }
-            let Some(j) = j else { break };
-            if j / pool != block {
-                block = j / pool;
-                s.idx.push(j);
-            }
-            let w = line[j] as f64;
-            s.block.push(PoolPixel {
-                x: rays.x[j],
-                y: w * rays.inv_g[j],
-                lo: rays.f_lo[j] / w,
-                hi: rays.f_hi[j] / w,
-            });
-        }
-        if s.idx.is_empty() {
-            continue;
-        }
-        let (lower, upper, ranges) = (&s.pool_lower, &s.pool_upper, &s.pool_ranges);
-        sweep_blocks(
-            lower,
-            upper,
-            ranges,
-            false,
-            margin,
-            &mut s.stack,
-            &mut s.ahead,
-        );
-        sweep_blocks(
-            lower,
-            upper,
-            ranges,
-            true,
-            margin,
-            &mut s.stack,
-            &mut s.behind,
-        );
-        for (k, &j) in s.idx.iter().enumerate() {
-            let (f_lo, f_hi) = s.pool_frustum[k];
-            let (own_behind, own_ahead) = s.pool_own[k];
-            let (b, a) = (s.behind[k].min(own_behind), s.ahead[k].min(own_ahead));
-            emit(j, interval(f_lo, f_hi, -b, a));
-        }
-    }
-}
-
-/// One pixel of a pooled block, in the sweep's coordinates.
-#[derive(Debug, Clone, Copy)]
-struct PoolPixel {
-    x: f64,
-    y: f64,
-    lo: f64,
-    hi: f64,
-}
-
-/// Appends one block (pixels in increasing `X`) to the pooled run: the lower
-/// hull of its points and the upper hull of its occluders, its tightest
-/// frustum, and the least ends any of its pixels gets from another of its
-/// pixels (all pairs).
-fn pool_block(px: &[PoolPixel], margin: f64, s: &mut LineScratch) {
-    let (mut f_lo, mut f_hi) = (f64::NEG_INFINITY, f64::INFINITY);
-    let (mut own_behind, mut own_ahead) = (f64::INFINITY, f64::INFINITY);
-    for (i, p) in px.iter().enumerate() {
-        f_lo = f_lo.max(p.lo);
-        f_hi = f_hi.min(p.hi);
-        let yl = p.y * (1.0 + margin);
-        for (k, q) in px.iter().enumerate() {
-            if k != i && q.y > yl {
-                let end = (q.x - p.x).abs() / (q.y - yl);
-                if k > i {
-                    own_ahead = own_ahead.min(end);
-                } else {
-                    own_behind = own_behind.min(end);
-                }
-            }
-        }
-    }
-    let (l0, u0) = (s.pool_lower.len(), s.pool_upper.len());
-    hull_into(px.iter().map(|p| (p.x, p.y)), false, &mut s.pool_lower);
-    hull_into(px.iter().map(|p| (p.x, p.y)), true, &mut s.pool_upper);
-    s.pool_ranges
-        .push([l0, s.pool_lower.len(), u0, s.pool_upper.len()]);
-    s.pool_frustum.push((f_lo, f_hi));
-    s.pool_own.push((own_behind, own_ahead));
 }
 
 /// The intervals of one line, one entry per sample (`None`: invalid, sky, or on
@@ -878,9 +635,8 @@ pub fn visibility(
     for a in 0..grid.lines {
         let (mut surface, mut occluded) = (false, false);
         let counts = in_band.contains(&a);
-        sweep_line_pooled(
+        sweep_line(
             grid.line(a),
-            params.pool_along,
             &rays,
             params.occluder_margin_rel,
             &mut scratch,
@@ -975,183 +731,6 @@ mod tests {
                 }
             }
         }
-    }
-
-    /// The block sweep on the blocks' hulls against the brute-force least end
-    /// over every point of a block and every occluder of the blocks beyond,
-    /// each margin and direction; and one-pixel blocks whose occluder is the
-    /// point against the plain sweep.
-    #[test]
-    fn block_sweep_matches_brute_force() {
-        let mut s = 7u64;
-        let mut next = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (s >> 40) as f64 / (1u64 << 24) as f64
-        };
-        for n in [1usize, 2, 3, 9, 40, 120, 300] {
-            let x: Vec<f64> = (0..n).map(|i| i as f64 * 0.37 - 5.0).collect();
-            // Flat stretches, slopes, blocks and single posts; the occluder of
-            // a position at or above its point, often far above (a gap's wall).
-            let y: Vec<f64> = (0..n)
-                .map(|i| match (i / 5) % 4 {
-                    0 => 1.0,
-                    1 => 1.0 + 0.05 * i as f64 + 0.01 * next(),
-                    _ => 1.0 + 0.5 * next() * next(),
-                })
-                .collect();
-            let occ: Vec<f64> = y
-                .iter()
-                .map(|&v| match (next() * 3.0) as u32 {
-                    0 => v,
-                    1 => v * (1.0 + 1e-4 * next()),
-                    _ => v + next(),
-                })
-                .collect();
-            for size in [1usize, 2, 3, 7] {
-                let (mut lower, mut upper, mut ranges) = (Vec::new(), Vec::new(), Vec::new());
-                for b in (0..n).step_by(size) {
-                    let e = (b + size).min(n);
-                    let (l0, u0) = (lower.len(), upper.len());
-                    hull_into((b..e).map(|i| (x[i], y[i])), false, &mut lower);
-                    hull_into((b..e).map(|i| (x[i], occ[i])), true, &mut upper);
-                    ranges.push([l0, lower.len(), u0, upper.len()]);
-                }
-                for margin in [0.0, 1e-3, 0.2] {
-                    for behind in [false, true] {
-                        let mut out = Vec::new();
-                        sweep_blocks(
-                            &lower,
-                            &upper,
-                            &ranges,
-                            behind,
-                            margin,
-                            &mut Vec::new(),
-                            &mut out,
-                        );
-                        for (bi, b) in (0..n).step_by(size).enumerate() {
-                            let e = (b + size).min(n);
-                            let others = if behind { 0..b } else { e..n };
-                            let brute = (b..e)
-                                .flat_map(|i| {
-                                    let yl = y[i] * (1.0 + margin);
-                                    let (x, occ) = (&x, &occ);
-                                    others
-                                        .clone()
-                                        .filter(move |&q| occ[q] > yl)
-                                        .map(move |q| (x[q] - x[i]).abs() / (occ[q] - yl))
-                                })
-                                .fold(f64::INFINITY, f64::min);
-                            let got = out[bi];
-                            assert!(
-                                (got - brute).abs() <= 1e-12 * brute.abs().max(1.0)
-                                    || (got.is_infinite() && brute.is_infinite()),
-                                "n {n} size {size} margin {margin} behind {behind} block {bi}: {got} brute {brute}"
-                            );
-                        }
-                    }
-                    // One-pixel blocks, occluder the point: the plain sweep.
-                    if size == 1 {
-                        let pts: Vec<(f64, f64)> =
-                            x.iter().copied().zip(y.iter().copied()).collect();
-                        let ranges: Vec<[usize; 4]> =
-                            (0..n).map(|i| [i, i + 1, i, i + 1]).collect();
-                        for behind in [false, true] {
-                            let (mut a, mut b) = (Vec::new(), Vec::new());
-                            sweep(&pts, behind, margin, &mut Vec::new(), &mut a);
-                            sweep_blocks(
-                                &pts,
-                                &pts,
-                                &ranges,
-                                behind,
-                                margin,
-                                &mut Vec::new(),
-                                &mut b,
-                            );
-                            for (p, q) in a.iter().zip(&b) {
-                                assert!(
-                                    (p - q).abs() <= 1e-12 * p.abs().max(1.0)
-                                        || (p.is_infinite() && q.is_infinite()),
-                                    "n {n} margin {margin} behind {behind}: {p} against {q}"
-                                );
-                            }
-                        }
-                    }
-                }
-            }
-        }
-    }
-
-    /// A pooled block's interval is the intersection of its pixels'
-    /// intervals (the plain sweep at full resolution), on random lines with
-    /// invalid pixels, sky, walls, slopes and gaps, at nadir and tilted (runs
-    /// above the flight line too).
-    #[test]
-    fn pooled_blocks_are_the_intersection_of_their_pixels() {
-        use crate::depth::{Intrinsics, TrackAxis};
-        let n = 97;
-        let geom = Intrinsics::from_hfov_deg(n, 1, 100.0, None)
-            .unwrap()
-            .track(TrackAxis::Rows);
-        let idx: Vec<usize> = (0..n).collect();
-        let mut seed = 11u64;
-        let mut next = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 40) as f64 / (1u64 << 24) as f64
-        };
-        let mut checked = 0usize;
-        for pitch in [0.0, 0.35, -0.6, 1.1] {
-            let rays = TrackRays::new(&geom, &idx, pitch);
-            for _ in 0..40 {
-                let mut line = vec![0f32; n];
-                let (mut w, mut slope) = (0.02, 0.0);
-                for v in line.iter_mut() {
-                    if next() < 0.1 {
-                        w = 0.01 + 0.05 * next();
-                        slope = if next() < 0.5 {
-                            0.0
-                        } else {
-                            2e-3 * (next() - 0.5)
-                        };
-                    }
-                    w = (w + slope).max(0.005);
-                    *v = match (next() * 20.0) as u32 {
-                        0 => crate::inverse::INVALID,
-                        1 => SKY,
-                        _ => (w * (1.0 + 1e-3 * next())) as f32,
-                    };
-                }
-                for margin in [0.0, 1e-3] {
-                    let mut s = LineScratch::default();
-                    let mut pixel = Vec::new();
-                    line_intervals(&line, &rays, margin, &mut s, &mut pixel);
-                    for pool in [2usize, 3, 8, 16] {
-                        sweep_line_pooled(&line, pool, &rays, margin, &mut s, |j, iv| {
-                            let block = (j / pool) * pool..((j / pool + 1) * pool).min(n);
-                            let pixels = pixel.iter().enumerate().take(block.end);
-                            let (mut from, mut to) = (f64::NEG_INFINITY, f64::INFINITY);
-                            for (k, p) in pixels.skip(block.start) {
-                                if let (Some(p), true) = (p, rays.side[k] == rays.side[j]) {
-                                    from = from.max(p.from_m);
-                                    to = to.min(p.to_m);
-                                    checked += 1;
-                                }
-                            }
-                            let close =
-                                |a: f64, b: f64| a == b || (a - b).abs() <= 1e-9 * a.abs().max(1.0);
-                            assert!(
-                                close(iv.from_m, from) && close(iv.to_m, to),
-                                "pitch {pitch} pool {pool} block of {j}: {iv:?} against [{from}, {to}]"
-                            );
-                        });
-                    }
-                }
-            }
-        }
-        assert!(checked > 10_000, "{checked}");
     }
 
     #[test]
