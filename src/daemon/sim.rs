@@ -743,3 +743,31 @@ fn capture_positions(
         })
         .collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The bench sweeps every pixel: thinned, the district's views-per-point
+    /// spacing came out up to 5.3x long (docs/performance.md).
+    #[test]
+    fn the_sim_config_sweeps_every_pixel() {
+        let scene_path = Path::new("scenes/district.toml");
+        let scene = Scene::load(scene_path).expect("the default scene loads");
+        for (width, height) in [(640, 480), (1280, 720), (4, 3)] {
+            let a = SimArgs {
+                width,
+                height,
+                ..SimArgs::default()
+            };
+            let text = sim_config_text(&a, scene_path, Path::new("/tmp/flight"), &scene);
+            let config = crate::config::Config::from_text(&text, "sim").expect("it validates");
+            let samples = config.estimator.visibility_samples_max;
+            assert!(samples >= width * height, "{width}x{height}: {samples}");
+            assert_eq!(
+                crate::core::estimate::visibility_step(width * height, 1, samples),
+                1
+            );
+        }
+    }
+}
