@@ -1,14 +1,16 @@
 //! What `decimation = "auto"`'s recalibration period buys and costs: along each
 //! scene's survey line, 640×480 Z16 depth every 1/30 s at the scene's speed (the
 //! daemon's 30 fps), the daemon's estimator (`[quality] profile = "lightfield"`, as `alfd sim`) with `auto`
-//! recalibrated every `P` frames, against the estimate of the same
-//! frame at full resolution, its sweep over every pixel. Per period: the estimator's time per frame as a ratio to reading the frame
-//! once (the sum of its u16 values, timed on the same frames in the same run), and the
-//! relative spacing error of every frame against full resolution (`docs/performance.md`):
+//! recalibrated every `P` frames, against the estimate of the same frame at full
+//! resolution with its visibility sweep over every pixel. Per period: the
+//! estimator's time per frame as a ratio to reading the frame once (the sum of its
+//! u16 values, timed on the same frames in the same run), the relative spacing
+//! error of every frame against full resolution, and how much longer (the unsafe
+//! side) it came out (`docs/performance.md`):
 //! `cargo run --release --example auto_recalibration [-- scenes/district.toml ...]`
 //! (default: the eight evaluation scenes and `district`).
 
-use alfd::core::estimate::relative_error;
+use alfd::core::estimate::{relative_error, relative_excess};
 use alfd::core::{Decimation, DepthData, Estimator, EstimatorParams};
 use alfd::render::{render_depth, survey_camera, Frame, SensorModel};
 use alfd::scene::Scene;
@@ -59,12 +61,9 @@ impl Tally {
         let err = relative_error(e.spacing.permissible_m, full.spacing.permissible_m);
         self.errors.push(err);
         // The unsafe direction: a spacing longer than full resolution's.
-        if let (Some(a), Some(b)) = (e.spacing.permissible_m, full.spacing.permissible_m) {
-            if a > b {
-                self.long = self.long.max(a / b - 1.0);
-                self.long_frames += (a / b - 1.0 > 0.05) as usize;
-            }
-        }
+        let excess = relative_excess(e.spacing.permissible_m, full.spacing.permissible_m);
+        self.long = self.long.max(excess);
+        self.long_frames += (excess > 0.05) as usize;
         self.levels.push(e.decimation);
         if self.worst.as_ref().is_none_or(|w| err > w.1) {
             self.worst = Some((x_m, err, terms(full, e)));

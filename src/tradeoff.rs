@@ -2,7 +2,7 @@
 //! of depth frames, against full resolution. Timing happens here, at the edge;
 //! the core only computes.
 
-use crate::core::estimate::relative_error;
+use crate::core::estimate::{relative_error, relative_excess};
 use crate::core::{DepthImage, Estimator, EstimatorParams, Intrinsics, Model};
 use std::time::Instant;
 
@@ -220,9 +220,7 @@ pub fn visibility_markdown(
             let (v, u) = spacings(&mut est, f);
             ve.push(relative_error(v, reference[k].0));
             ue.push(relative_error(u, reference[k].1));
-            if let (Some(v), Some(r)) = (v, reference[k].0) {
-                longer = longer.max(v / r - 1.0);
-            }
+            longer = longer.max(relative_excess(v, reference[k].0));
             t += time_us(&mut est, f, 1, repeats);
         }
         let n = frames.len().max(1) as f64;

@@ -335,6 +335,17 @@ pub fn relative_error(x: Option<f64>, reference: Option<f64>) -> f64 {
     }
 }
 
+/// How much longer than `reference` a spacing is, relative (the unsafe side of
+/// [`relative_error`]): 0 when shorter or equal, or when the reference is
+/// unbounded; infinite when only the reference is bounded.
+pub fn relative_excess(x: Option<f64>, reference: Option<f64>) -> f64 {
+    match (x, reference) {
+        (Some(a), Some(b)) => ((a - b) / b).max(0.0),
+        (None, Some(_)) => f64::INFINITY,
+        (_, None) => 0.0,
+    }
+}
+
 /// An estimator with its scratch buffers, reused frame after frame.
 #[derive(Debug, Clone)]
 pub struct Estimator {
@@ -981,6 +992,15 @@ mod tests {
         }
         let [lo, hi] = Selector::default().select2(&v, false, ranks)?;
         Some((hi - lo) as f64)
+    }
+
+    #[test]
+    fn relative_excess_counts_only_the_longer_side() {
+        assert_eq!(relative_excess(Some(3.0), Some(2.0)), 0.5);
+        assert_eq!(relative_excess(Some(1.0), Some(2.0)), 0.0);
+        assert_eq!(relative_excess(None, Some(2.0)), f64::INFINITY);
+        assert_eq!(relative_excess(Some(1.0), None), 0.0);
+        assert_eq!(relative_excess(None, None), 0.0);
     }
 
     #[test]
