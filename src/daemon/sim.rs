@@ -522,10 +522,10 @@ pub async fn run_sim_with(
         b
     });
     let captures_seen = Arc::new(Mutex::new(0u64));
-    let on_sample: Option<SampleHook> = bar.clone().map(|b| {
+    let mut progress = bar.clone().map(|b| {
         let seen = captures_seen.clone();
         let (mut flown_m, mut last) = (0.0f64, None::<[f64; 3]>);
-        Box::new(move |s: &FrameSample| {
+        move |s: &FrameSample| {
             if let Some(p) = s.pos_ned_m {
                 if let Some(l) = last {
                     flown_m += (p[0] - l[0]).hypot(p[1] - l[1]);
@@ -538,6 +538,27 @@ pub async fn run_sim_with(
                 *n += 1;
                 let spacing = s.spacing_m.map_or("-".into(), |v| format!("{v:.2} m"));
                 b.set_message(format!("{n} captures, spacing {spacing}"));
+            }
+        }
+    });
+    // The truth track, estimated beside the flight from the true pose at each
+    // frame the daemon processes (the same poses as after it: `truth_track`).
+    let truth_stream =
+        simreport::TruthStream::spawn(scene.clone(), intr, config.estimator.clone()).map(Arc::new);
+    let mut feed = truth_stream.clone().map(|stream| {
+        let sim = sim.clone();
+        let mut tracker = TruthTracker::new(scene.clone(), intr, mount);
+        move |s: &FrameSample| {
+            stream.push(tracker.pose(s.mono_ns, &sim.truth_at_mono_ns(s.mono_ns)))
+        }
+    });
+    let on_sample: Option<SampleHook> = (progress.is_some() || feed.is_some()).then(|| {
+        Box::new(move |s: &FrameSample| {
+            if let Some(f) = progress.as_mut() {
+                f(s);
+            }
+            if let Some(f) = feed.as_mut() {
+                f(s);
             }
         }) as SampleHook
     });
@@ -610,7 +631,24 @@ pub async fn run_sim_with(
     // Judge the run against the truth at the instants the daemon had frames.
     let truth_at = |t: u64| sim.truth_at_mono_ns(t);
     let (poses, daemon) = truth_track(&scene, &config, &report.samples, &truth_at);
-    let truth = simreport::truth_estimates(&scene, intr, &config.estimator, &poses);
+    // The hook that fed the stream went with the daemon's tasks: this is the
+    // last handle.
+    let streamed = match truth_stream.map(Arc::try_unwrap) {
+        Some(Ok(stream)) => stream.finish().map_or_else(
+            || Err("its worker stopped"),
+            |(streamed_poses, truth)| {
+                (streamed_poses == poses)
+                    .then_some(truth)
+                    .ok_or("its poses differ from the run's frames")
+            },
+        ),
+        Some(Err(_)) => Err("it is still fed"),
+        None => Err("no thread for it"),
+    };
+    let truth = streamed.unwrap_or_else(|why| {
+        tracing::warn!("truth track not streamed ({why}): estimated after the flight");
+        simreport::truth_estimates(&scene, intr, &config.estimator, &poses)
+    });
     let captures = capture_positions(&report, &poses, &truth_at);
     let summary = simreport::summarize(
         &truth,
@@ -671,42 +709,67 @@ pub async fn run_sim_with(
 /// True poses at the daemon's frame instants, with the distance flown along
 /// the truth path; and the daemon's own estimates at the same places.
 fn truth_track(
-    scene: &Scene,
+    scene: &Arc<Scene>,
     config: &Config,
     samples: &[FrameSample],
     truth_at: &dyn Fn(u64) -> Truth,
 ) -> (Vec<TruthPose>, Vec<DaemonSample>) {
     let intr = intrinsics(&config.depth).expect("validated when the run started");
-    let mut along = 0.0;
-    let mut last: Option<[f64; 3]> = None;
-    let mut poses = Vec::with_capacity(samples.len());
-    let mut daemon = Vec::with_capacity(samples.len());
-    for s in samples {
-        let tr = truth_at(s.mono_ns);
-        if let Some(l) = last {
-            along += (tr.pos_ned_m[0] - l[0]).hypot(tr.pos_ned_m[1] - l[1]);
-        }
-        last = Some(tr.pos_ned_m);
-        let cp = scene_camera_pose(
+    let mut tracker = TruthTracker::new(scene.clone(), intr, config.depth.mount_pitch_rad);
+    samples
+        .iter()
+        .map(|s| {
+            let pose = tracker.pose(s.mono_ns, &truth_at(s.mono_ns));
+            let daemon = DaemonSample {
+                along_m: pose.along_m,
+                spacing_m: s.spacing_m,
+                occlusion_degree: s.occlusion_degree,
+            };
+            (pose, daemon)
+        })
+        .unzip()
+}
+
+/// The true camera pose at each frame in turn, with the distance flown along
+/// the truth path since the first.
+struct TruthTracker {
+    scene: Arc<Scene>,
+    intr: Intrinsics,
+    mount_pitch_rad: f64,
+    along_m: f64,
+    last: Option<[f64; 3]>,
+}
+
+impl TruthTracker {
+    fn new(scene: Arc<Scene>, intr: Intrinsics, mount_pitch_rad: f64) -> TruthTracker {
+        TruthTracker {
             scene,
-            config.depth.mount_pitch_rad,
+            intr,
+            mount_pitch_rad,
+            along_m: 0.0,
+            last: None,
+        }
+    }
+
+    fn pose(&mut self, mono_ns: u64, tr: &Truth) -> TruthPose {
+        if let Some(l) = self.last {
+            self.along_m += (tr.pos_ned_m[0] - l[0]).hypot(tr.pos_ned_m[1] - l[1]);
+        }
+        self.last = Some(tr.pos_ned_m);
+        let cp = scene_camera_pose(
+            &self.scene,
+            self.mount_pitch_rad,
             tr.pos_ned_m,
             tr.rpy_deg.map(f64::to_radians),
         );
-        poses.push(TruthPose {
-            mono_ns: s.mono_ns,
-            along_m: along,
-            camera: cp.camera(intr),
+        TruthPose {
+            mono_ns,
+            along_m: self.along_m,
+            camera: cp.camera(self.intr),
             north_m: tr.pos_ned_m[0],
             east_m: tr.pos_ned_m[1],
-        });
-        daemon.push(DaemonSample {
-            along_m: along,
-            spacing_m: s.spacing_m,
-            occlusion_degree: s.occlusion_degree,
-        });
+        }
     }
-    (poses, daemon)
 }
 
 /// Where each logged capture truly was, as distance along the truth path.

@@ -227,11 +227,18 @@ impl Frame {
 
     /// 8-bit sRGB-less RGB bytes (for PNG output).
     pub fn rgb8(&self) -> Vec<u8> {
-        self.rgb
-            .iter()
-            .flat_map(|p| p.map(|c| (c.clamp(0.0, 1.0) * 255.0).round() as u8))
-            .collect()
+        self.rgb.iter().flat_map(|p| p.map(byte_of)).collect()
     }
+}
+
+/// `(c.clamp(0, 1) · 255).round()` as a byte (NaN: 0), without libm's `roundf`
+/// (a call per channel on baseline x86-64): the truncation is a cast and the
+/// fraction below 256 is exact, so the bytes are the same.
+#[inline]
+pub fn byte_of(c: f32) -> u8 {
+    let v = c.clamp(0.0, 1.0) * 255.0;
+    let t = v as u8;
+    t + (v - t as f32 >= 0.5) as u8
 }
 
 #[inline]
@@ -587,6 +594,27 @@ pub fn write_png(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn bytes_without_roundf_are_the_bytes_of_roundf() {
+        let by_round = |c: f32| (c.clamp(0.0, 1.0) * 255.0).round() as u8;
+        let mut cs = vec![f32::NAN, f32::INFINITY, -f32::INFINITY, -0.5, 2.0];
+        for k in 0..=255u32 {
+            // The colour whose scaled value is a tie, and its neighbours.
+            let tie = (k as f32 + 0.5) / 255.0;
+            cs.extend([
+                tie,
+                f32::from_bits(tie.to_bits() - 1),
+                f32::from_bits(tie.to_bits() + 1),
+                k as f32 / 255.0,
+            ]);
+        }
+        // Every representable value in [0, 1] by a stride.
+        cs.extend((0..=1.0f32.to_bits()).step_by(97).map(f32::from_bits));
+        for c in cs {
+            assert_eq!(byte_of(c), by_round(c), "{c}");
+        }
+    }
 
     #[test]
     fn the_middle_sample_of_an_odd_grid_is_the_pixel_centre_bit_for_bit() {

@@ -46,7 +46,7 @@ mod truth;
 
 pub use plot::plots;
 pub use summary::{summarize, SpacingRange, Summary};
-pub use truth::truth_estimates;
+pub use truth::{truth_estimates, TruthStream};
 
 use serde::Serialize;
 

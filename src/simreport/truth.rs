@@ -1,15 +1,20 @@
 //! The truth track: noise-free depth rendered at each true pose, through one
 //! estimator in pose order (as the daemon runs it). Rendering is parallel;
 //! estimating too when the decimation is fixed (no state between frames),
-//! else sequential.
+//! else sequential. In one batch after a flight ([`truth_estimates`]), or
+//! streamed beside it ([`TruthStream`]) with the same samples.
 
 use super::{TrackSample, TruthPose};
 use crate::core::attitude::{body_to_ned, flight_axis};
-use crate::core::{Decimation, DepthData, DepthImage, Estimator, EstimatorParams, Intrinsics};
+use crate::core::{
+    Decimation, DepthData, DepthImage, Estimator, EstimatorParams, Intrinsics, TrackAxis,
+};
 use crate::render::{render_depth, Camera};
 use crate::scene::Scene;
+use crate::source::synthetic::lower_this_threads_priority;
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
+use std::sync::Arc;
 
 /// Poses rendered at once: keeps the depth maps in memory bounded.
 const CHUNK: usize = 64;
@@ -22,57 +27,190 @@ pub fn truth_estimates(
     params: &EstimatorParams,
     poses: &[TruthPose],
 ) -> Vec<TrackSample> {
-    // The scan axis and tilt at pose `k`, from the true attitude and the
-    // direction of flight between the neighbouring poses (as the daemon's).
-    let axis_pitch = |k: usize| {
-        let p = &poses[k];
-        let (a, b) = (
-            &poses[k.saturating_sub(1)],
-            &poses[(k + 1).min(poses.len() - 1)],
-        );
-        let dt_s = b.mono_ns.saturating_sub(a.mono_ns) as f64 * 1e-9;
-        let vel = if dt_s > 0.0 {
-            DVec3::new(
-                (b.north_m - a.north_m) / dt_s,
-                (b.east_m - a.east_m) / dt_s,
-                0.0,
-            )
-        } else {
-            DVec3::ZERO
-        };
-        flight_axis(&cam_to_ned(&p.camera), vel, params.track_axis)
-    };
-    // A fixed decimation keeps no state from frame to frame: the poses are
-    // estimated in parallel, one estimator per worker, with the same results.
+    let mut out = Vec::with_capacity(poses.len());
+    let mut estimator = Estimator::new(params.clone());
+    estimate_range(
+        scene,
+        intrinsics,
+        params,
+        poses,
+        0..poses.len(),
+        &mut estimator,
+        &mut out,
+    );
+    out
+}
+
+/// Appends the samples of `poses[range]` to `out`, each pose's flight axis from
+/// its neighbours in `poses` (clamped at the ends: the caller leaves the last
+/// pose out until its successor is known, or the track has ended). A fixed
+/// decimation keeps no state from frame to frame, so its poses are estimated
+/// in parallel, one estimator per worker, with the same results; otherwise in
+/// pose order through `sequential`, the depth rendered in parallel `CHUNK`s.
+fn estimate_range(
+    scene: &Scene,
+    intrinsics: Intrinsics,
+    params: &EstimatorParams,
+    poses: &[TruthPose],
+    range: std::ops::Range<usize>,
+    sequential: &mut Estimator,
+    out: &mut Vec<TrackSample>,
+) {
     if matches!(params.decimation, Decimation::Fixed(_)) {
-        return (0..poses.len())
+        let samples: Vec<TrackSample> = range
             .into_par_iter()
             .map_init(
                 || Estimator::new(params.clone()),
                 |estimator, k| {
                     let p = &poses[k];
                     let depth = render_depth(scene, &camera(p, intrinsics));
-                    let (axis, pitch_rad) = axis_pitch(k);
+                    let (axis, pitch_rad) = axis_pitch(poses, k, params.track_axis);
                     estimator.set_track_axis(axis);
                     sample(estimator, p, intrinsics, depth, pitch_rad)
                 },
             )
             .collect();
+        out.extend(samples);
+        return;
     }
-    let mut estimator = Estimator::new(params.clone());
-    let mut out = Vec::with_capacity(poses.len());
-    for (c, chunk) in poses.chunks(CHUNK).enumerate() {
-        let depths: Vec<Vec<f32>> = chunk
+    for start in range.clone().step_by(CHUNK) {
+        let chunk = start..(start + CHUNK).min(range.end);
+        let depths: Vec<Vec<f32>> = poses[chunk.clone()]
             .par_iter()
             .map(|p| render_depth(scene, &camera(p, intrinsics)))
             .collect();
-        for (i, (p, depth)) in chunk.iter().zip(depths).enumerate() {
-            let (axis, pitch_rad) = axis_pitch(c * CHUNK + i);
-            estimator.set_track_axis(axis);
-            out.push(sample(&mut estimator, p, intrinsics, depth, pitch_rad));
+        for (k, depth) in chunk.zip(depths) {
+            let (axis, pitch_rad) = axis_pitch(poses, k, params.track_axis);
+            sequential.set_track_axis(axis);
+            out.push(sample(sequential, &poses[k], intrinsics, depth, pitch_rad));
         }
     }
-    out
+}
+
+/// The scan axis and tilt at pose `k`, from the true attitude and the
+/// direction of flight between the neighbouring poses (as the daemon's).
+fn axis_pitch(poses: &[TruthPose], k: usize, track_axis: TrackAxis) -> (TrackAxis, f64) {
+    let p = &poses[k];
+    let (a, b) = (
+        &poses[k.saturating_sub(1)],
+        &poses[(k + 1).min(poses.len() - 1)],
+    );
+    let dt_s = b.mono_ns.saturating_sub(a.mono_ns) as f64 * 1e-9;
+    let vel = if dt_s > 0.0 {
+        DVec3::new(
+            (b.north_m - a.north_m) / dt_s,
+            (b.east_m - a.east_m) / dt_s,
+            0.0,
+        )
+    } else {
+        DVec3::ZERO
+    };
+    flight_axis(&cam_to_ned(&p.camera), vel, track_axis)
+}
+
+/// The truth track estimated while the flight runs, on a thread of its own:
+/// the flight on simulated time keeps one core busy (its runtime is a single
+/// thread), and this takes what the other has to spare. Poses go in as the
+/// daemon's frames come; [`TruthStream::finish`] estimates what is left on
+/// every core and returns the same samples as [`truth_estimates`] over the
+/// same poses.
+///
+/// The queue holds poses (a few dozen bytes each, the depth is rendered on the
+/// worker) and is bounded at `STREAM_QUEUE`: when full, [`TruthStream::push`]
+/// waits for the worker, which on simulated time freezes the clock with it, so
+/// the flight is the same either way.
+pub struct TruthStream {
+    tx: Option<std::sync::mpsc::SyncSender<TruthPose>>,
+    worker: Option<std::thread::JoinHandle<TruthStreamResult>>,
+}
+
+/// The poses a [`TruthStream`] was given and its samples at them.
+type TruthStreamResult = (Vec<TruthPose>, Vec<TrackSample>);
+
+/// Poses queued for the truth worker before [`TruthStream::push`] waits.
+const STREAM_QUEUE: usize = 4096;
+
+impl TruthStream {
+    /// Starts the worker (thread `alfd-truth`, lowest priority, one rayon
+    /// thread of its own while the flight runs). `None` when no thread could be
+    /// started: the caller estimates after the flight instead.
+    pub fn spawn(
+        scene: Arc<Scene>,
+        intrinsics: Intrinsics,
+        params: EstimatorParams,
+    ) -> Option<TruthStream> {
+        let (tx, rx) = std::sync::mpsc::sync_channel::<TruthPose>(STREAM_QUEUE);
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .thread_name(|_| "alfd-truth-render".into())
+            .start_handler(|_| lower_this_threads_priority())
+            .build()
+            .ok()?;
+        let worker = std::thread::Builder::new()
+            .name("alfd-truth".into())
+            .spawn(move || {
+                lower_this_threads_priority();
+                let mut poses: Vec<TruthPose> = Vec::new();
+                let mut out: Vec<TrackSample> = Vec::new();
+                let mut estimator = Estimator::new(params.clone());
+                // While the flight runs: each pose once its successor is known
+                // (its flight axis needs both neighbours), on the worker's own
+                // thread so the flight's renders keep rayon's pool.
+                while let Ok(p) = rx.recv() {
+                    poses.push(p);
+                    poses.extend(rx.try_iter());
+                    let ready = poses.len() - 1;
+                    if ready > out.len() {
+                        let range = out.len()..ready;
+                        pool.install(|| {
+                            estimate_range(
+                                &scene,
+                                intrinsics,
+                                &params,
+                                &poses,
+                                range,
+                                &mut estimator,
+                                &mut out,
+                            )
+                        });
+                    }
+                }
+                // The flight is over: the rest on every core.
+                let range = out.len()..poses.len();
+                estimate_range(
+                    &scene,
+                    intrinsics,
+                    &params,
+                    &poses,
+                    range,
+                    &mut estimator,
+                    &mut out,
+                );
+                (poses, out)
+            })
+            .ok()?;
+        Some(TruthStream {
+            tx: Some(tx),
+            worker: Some(worker),
+        })
+    }
+
+    /// Queues the next pose (in pose order); waits while the queue is full.
+    /// A worker that has stopped (it panicked) takes nothing more, and
+    /// [`TruthStream::finish`] says so.
+    pub fn push(&self, pose: TruthPose) {
+        if let Some(tx) = &self.tx {
+            // An error means the worker is gone: `finish` reports it.
+            tx.send(pose).ok();
+        }
+    }
+
+    /// Estimates what is left and returns the poses given and their samples;
+    /// `None` if the worker panicked.
+    pub fn finish(mut self) -> Option<TruthStreamResult> {
+        drop(self.tx.take());
+        self.worker.take()?.join().ok()
+    }
 }
 
 /// The camera's rotation, OpenCV axes → NED: the renderer's ZYX angles, the
@@ -202,6 +340,36 @@ texture = { colour = [0.7, 0.6, 0.6], contrast = 0.3, seed = 2 }
         }
         // Over the building's edge the occlusion term is in play.
         assert!(track.iter().any(|s| s.occlusion_degree.is_some()));
+    }
+
+    #[test]
+    fn the_stream_gives_the_batch_samples() {
+        let scene = Arc::new(Scene::parse(SCENE, "inline").expect("the inline scene parses"));
+        let intr = Intrinsics::from_hfov_deg(64, 48, 69.0, None).unwrap();
+        let poses = poses(intr);
+        // Fixed decimation (parallel estimates) and auto (one estimator in
+        // pose order, whose state carries from frame to frame).
+        for params in [
+            EstimatorParams::default(),
+            EstimatorParams {
+                decimation: Decimation::auto(),
+                ..EstimatorParams::default()
+            },
+        ] {
+            let batch = truth_estimates(&scene, intr, &params, &poses);
+            assert_eq!(batch.len(), poses.len());
+            let stream = TruthStream::spawn(scene.clone(), intr, params.clone())
+                .expect("a thread for the stream");
+            for p in &poses {
+                stream.push(*p);
+            }
+            let (given, streamed) = stream.finish().expect("the worker finishes");
+            assert_eq!(given, poses);
+            assert_eq!(streamed, batch, "{:?}", params.decimation);
+        }
+        // A stream given nothing gives nothing.
+        let stream = TruthStream::spawn(scene, intr, EstimatorParams::default()).unwrap();
+        assert_eq!(stream.finish(), Some((Vec::new(), Vec::new())));
     }
 
     #[test]

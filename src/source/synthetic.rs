@@ -214,7 +214,7 @@ impl<P> SyntheticColor<P> {
 
 /// Nice 19 for the calling thread (Linux keeps a nice value per thread): the
 /// colour renders queue behind the depth stream instead of delaying it.
-fn lower_this_threads_priority() {
+pub(crate) fn lower_this_threads_priority() {
     // `None` is who = 0: the calling thread. Failure only leaves the priority as is.
     let _ = rustix::process::setpriority_process(None, 19);
 }
