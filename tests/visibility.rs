@@ -585,6 +585,7 @@ fn params() -> impl Strategy<Value = VisibilityParams> {
             phases,
             occluder_margin_rel: margin,
             views_band: 1.0,
+            threads: 1,
         })
 }
 
@@ -677,6 +678,29 @@ fn check_outputs(v: &Visibility) -> Result<(), TestCaseError> {
 
 proptest! {
     #![proptest_config(config(20))]
+
+    /// Lines swept on several threads give the bits of one thread: counts,
+    /// shortest intervals and the occluded samples in line order.
+    #[test]
+    fn any_thread_count_gives_the_same_bits(
+        c in random_case(),
+        p in params(),
+        threads in 2usize..7,
+        band in prop_oneof![Just(1.0), 0.0f64..1.0],
+    ) {
+        let p = VisibilityParams { views_band: band, ..p };
+        let one = visibility_of_image(&c.img, &c.intr, c.axis, c.step, c.pitch_rad, &p);
+        let many = visibility_of_image(
+            &c.img,
+            &c.intr,
+            c.axis,
+            c.step,
+            c.pitch_rad,
+            &VisibilityParams { threads, ..p },
+        );
+        // `Visibility`'s `==` on its floats: none is NaN (the test above).
+        prop_assert_eq!(one, many);
+    }
 
     /// Finite, non-negative, in range and monotone on random maps, focal
     /// lengths, pitches (beyond ±90° too), decimations and track axes.

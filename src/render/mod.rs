@@ -194,6 +194,24 @@ impl Frame {
     /// Depth as a RealSense gives it: Z16 with optional noise and dropout;
     /// sky, dropped pixels and anything beyond the range are 0 (no return).
     pub fn z16(&self, sensor: &SensorModel) -> DepthImage {
+        let data = if sensor.noise_per_m > 0.0 || sensor.dropout > 0.0 {
+            self.z16_data_noisy(sensor)
+        } else {
+            z16_exact(&self.depth_m, sensor.scale_m, sensor.max_range_m)
+        };
+        DepthImage::new(
+            self.width,
+            self.height,
+            DepthData::Z16 {
+                data,
+                scale_m: sensor.scale_m,
+            },
+        )
+        .expect("frame size matches its data")
+    }
+
+    /// [`Frame::z16`]'s data through every stage of the sensor model.
+    fn z16_data_noisy(&self, sensor: &SensorModel) -> Vec<u16> {
         let mut d = self.depth_m.clone();
         if sensor.noise_per_m > 0.0 {
             let mut s = sensor.seed ^ 0x5851_F42D_4C95_7F2D;
@@ -213,22 +231,37 @@ impl Frame {
         if sensor.dropout > 0.0 {
             crate::synth::dropout(&mut d, sensor.dropout, sensor.seed);
         }
-        let data = crate::synth::to_z16(&d, sensor.scale_m);
-        DepthImage::new(
-            self.width,
-            self.height,
-            DepthData::Z16 {
-                data,
-                scale_m: sensor.scale_m,
-            },
-        )
-        .expect("frame size matches its data")
+        crate::synth::to_z16(&d, sensor.scale_m)
     }
 
     /// 8-bit sRGB-less RGB bytes (for PNG output).
     pub fn rgb8(&self) -> Vec<u8> {
         self.rgb.iter().flat_map(|p| p.map(byte_of)).collect()
     }
+}
+
+/// Z16 of exact depth (no noise, no dropout) in one pass: what
+/// [`Frame::z16`]'s stages give without them (0 beyond `max_range_m`, for sky,
+/// NaN and anything that rounds outside 1..=65534), bit for bit. Written to
+/// vectorise: every pixel computes its value and keeps it or 0, and the
+/// rounding is a truncating cast (exact where it is kept) instead of a call.
+fn z16_exact(depth_m: &[f32], scale_m: f64, max_range_m: f64) -> Vec<u16> {
+    depth_m
+        .iter()
+        .map(|&d| {
+            let q = d as f64 / scale_m;
+            let keep =
+                d.is_finite() && d as f64 <= max_range_m && q >= 0.5 && q < u16::MAX as f64 - 0.5;
+            // Saturates (and wraps below) where `keep` is false.
+            let t = q as i32;
+            let r = t.wrapping_add((q - t as f64 >= 0.5) as i32);
+            if keep {
+                r as u16
+            } else {
+                0
+            }
+        })
+        .collect()
 }
 
 /// `(c.clamp(0, 1) · 255).round()` as a byte (NaN: 0), without libm's `roundf`
@@ -594,6 +627,70 @@ pub fn write_png(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn exact_z16_in_one_pass_equals_the_sensor_stages() {
+        // Ties of the Z16 rounding, their neighbours, both ends of its range,
+        // the sensor's range and beyond, sky, NaN, negative and zero depths.
+        let mut d = vec![
+            f32::NAN,
+            f32::INFINITY,
+            -f32::INFINITY,
+            -1.0,
+            0.0,
+            0.004,
+            0.005,
+        ];
+        for k in 0..70_000u32 {
+            let tie = (k as f64 + 0.5) * 0.001;
+            let f = tie as f32;
+            d.extend([
+                f,
+                f32::from_bits(f.to_bits() - 1),
+                f32::from_bits(f.to_bits() + 1),
+            ]);
+        }
+        d.extend((0..100_000u32).map(|i| f32::from_bits(i.wrapping_mul(0x9E37_79B9) >> 1)));
+        d.extend([
+            65.0,
+            65.0f32.next_down_bits(),
+            65.0f32.next_up_bits(),
+            65.5,
+            65.535,
+            65.5345,
+        ]);
+        let frame = Frame {
+            width: d.len(),
+            height: 1,
+            rgb: Vec::new(),
+            depth_m: d,
+        };
+        for (scale_m, max_range_m) in [(0.001, 65.0), (0.01, 300.0), (0.001, 1e9), (1.0, 0.0)] {
+            let sensor = SensorModel {
+                scale_m,
+                max_range_m,
+                ..SensorModel::default()
+            };
+            assert_eq!(
+                z16_exact(&frame.depth_m, scale_m, max_range_m),
+                frame.z16_data_noisy(&sensor),
+                "scale {scale_m} range {max_range_m}"
+            );
+        }
+    }
+
+    trait Neighbours {
+        fn next_down_bits(self) -> Self;
+        fn next_up_bits(self) -> Self;
+    }
+    impl Neighbours for f32 {
+        fn next_down_bits(self) -> f32 {
+            f32::from_bits(self.to_bits() - 1)
+        }
+        fn next_up_bits(self) -> f32 {
+            f32::from_bits(self.to_bits() + 1)
+        }
+    }
 
     #[test]
     fn bytes_without_roundf_are_the_bytes_of_roundf() {

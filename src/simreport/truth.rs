@@ -11,7 +11,7 @@ use crate::core::{
 };
 use crate::render::{render_depth, Camera};
 use crate::scene::Scene;
-use crate::source::synthetic::lower_this_threads_priority;
+use crate::source::synthetic::idle_this_thread;
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
 use std::sync::Arc;
@@ -110,7 +110,7 @@ fn axis_pitch(poses: &[TruthPose], k: usize, track_axis: TrackAxis) -> (TrackAxi
 
 /// The truth track estimated while the flight runs, on a thread of its own:
 /// the flight on simulated time keeps one core busy (its runtime is a single
-/// thread), and this takes what the other has to spare. Poses go in as the
+/// thread), and this takes only what the cores have to spare (`SCHED_IDLE`). Poses go in as the
 /// daemon's frames come; [`TruthStream::finish`] estimates what is left on
 /// every core and returns the same samples as [`truth_estimates`] over the
 /// same poses.
@@ -131,7 +131,7 @@ type TruthStreamResult = (Vec<TruthPose>, Vec<TrackSample>);
 const STREAM_QUEUE: usize = 4096;
 
 impl TruthStream {
-    /// Starts the worker (thread `alfd-truth`, lowest priority, one rayon
+    /// Starts the worker (thread `alfd-truth`, `SCHED_IDLE`, one rayon
     /// thread of its own while the flight runs). `None` when no thread could be
     /// started: the caller estimates after the flight instead.
     pub fn spawn(
@@ -143,13 +143,13 @@ impl TruthStream {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(1)
             .thread_name(|_| "alfd-truth-render".into())
-            .start_handler(|_| lower_this_threads_priority())
+            .start_handler(|_| idle_this_thread())
             .build()
             .ok()?;
         let worker = std::thread::Builder::new()
             .name("alfd-truth".into())
             .spawn(move || {
-                lower_this_threads_priority();
+                idle_this_thread();
                 let mut poses: Vec<TruthPose> = Vec::new();
                 let mut out: Vec<TrackSample> = Vec::new();
                 let mut estimator = Estimator::new(params.clone());

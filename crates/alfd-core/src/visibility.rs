@@ -29,6 +29,10 @@ pub struct VisibilityParams {
     /// occluders beside the line, and points at the lateral edges are side
     /// overlap's business, not the spacing's (the truth samples the middle half).
     pub views_band: f64,
+    /// Threads the lines are swept on (1: the caller's alone). Lines are
+    /// independent and their results are merged in line order, so the result
+    /// has the same bits at any count; only the latency changes.
+    pub threads: usize,
 }
 
 impl Default for VisibilityParams {
@@ -39,6 +43,7 @@ impl Default for VisibilityParams {
             phases: DEFAULT_PHASES,
             occluder_margin_rel: 1e-3,
             views_band: 1.0,
+            threads: 1,
         }
     }
 }
@@ -623,8 +628,6 @@ pub fn visibility(
         return v;
     }
     let rays = TrackRays::new(geom, &grid.along_idx, pitch_rad);
-    let mut scratch = LineScratch::default();
-    let (mut min_all, mut min_occ) = (f64::INFINITY, f64::INFINITY);
     let band = if params.views_band.is_finite() {
         params.views_band.clamp(0.0, 1.0)
     } else {
@@ -632,33 +635,45 @@ pub fn visibility(
     };
     let skip = ((grid.lines as f64 * (1.0 - band) * 0.5).floor() as usize).min(grid.lines / 2);
     let in_band = skip..grid.lines - skip;
-    for a in 0..grid.lines {
-        let (mut surface, mut occluded) = (false, false);
-        let counts = in_band.contains(&a);
-        sweep_line(
-            grid.line(a),
-            &rays,
-            params.occluder_margin_rel,
-            &mut scratch,
-            |_, iv| {
-                surface = true;
-                v.samples += 1;
-                let l = iv.length_m();
-                if counts {
-                    min_all = min_all.min(l);
-                }
-                if iv.occluded() {
-                    occluded = true;
-                    v.occluded_samples += 1;
-                    if counts {
-                        min_occ = min_occ.min(l);
-                    }
-                    v.occluded.push((iv.from_m as f32, iv.to_m as f32));
-                }
-            },
-        );
-        v.lines += surface as u64;
-        v.occluded_lines += occluded as u64;
+    let margin = params.occluder_margin_rel;
+    // Contiguous runs of lines, one per thread, merged in line order.
+    let threads = params.threads.clamp(1, grid.lines);
+    let per = grid.lines.div_ceil(threads);
+    let runs: Vec<std::ops::Range<usize>> = (0..grid.lines)
+        .step_by(per)
+        .map(|a| a..(a + per).min(grid.lines))
+        .collect();
+    let swept: Vec<Lines> = if runs.len() == 1 {
+        vec![sweep_lines(grid, &rays, margin, &in_band, runs[0].clone())]
+    } else {
+        std::thread::scope(|scope| {
+            let (rays, in_band) = (&rays, &in_band);
+            let others: Vec<_> = runs[1..]
+                .iter()
+                .map(|r| {
+                    let r = r.clone();
+                    scope.spawn(move || sweep_lines(grid, rays, margin, in_band, r))
+                })
+                .collect();
+            let mut all = vec![sweep_lines(grid, rays, margin, in_band, runs[0].clone())];
+            // A sweep does not panic on any input (its tests); if one did, the
+            // panic is the caller's, as on a single thread.
+            all.extend(others.into_iter().map(|h| match h.join() {
+                Ok(l) => l,
+                Err(panic) => std::panic::resume_unwind(panic),
+            }));
+            all
+        })
+    };
+    let (mut min_all, mut min_occ) = (f64::INFINITY, f64::INFINITY);
+    for l in swept {
+        v.lines += l.lines;
+        v.samples += l.samples;
+        v.occluded_samples += l.occluded_samples;
+        v.occluded_lines += l.occluded_lines;
+        min_all = min_all.min(l.min_all);
+        min_occ = min_occ.min(l.min_occ);
+        v.occluded.extend(l.occluded);
     }
     let k = v.views_per_point_min as f64;
     v.interval_min_m = min_all.is_finite().then_some(min_all);
@@ -671,6 +686,60 @@ pub fn visibility(
         v.spacing_unseen_m = unseen_spacing(&v.occluded, k_max, v.phases);
     }
     v
+}
+
+/// What the sweep of a run of lines found: [`Visibility`]'s counts, the
+/// shortest intervals in the views band, and the occluded samples in line order.
+struct Lines {
+    lines: u64,
+    samples: u64,
+    occluded_samples: u64,
+    occluded_lines: u64,
+    min_all: f64,
+    min_occ: f64,
+    occluded: Vec<(f32, f32)>,
+}
+
+fn sweep_lines(
+    grid: &InvGrid,
+    rays: &TrackRays,
+    margin_rel: f64,
+    in_band: &std::ops::Range<usize>,
+    lines: std::ops::Range<usize>,
+) -> Lines {
+    let mut out = Lines {
+        lines: 0,
+        samples: 0,
+        occluded_samples: 0,
+        occluded_lines: 0,
+        min_all: f64::INFINITY,
+        min_occ: f64::INFINITY,
+        occluded: Vec::new(),
+    };
+    let mut scratch = LineScratch::default();
+    for a in lines {
+        let (mut surface, mut occluded) = (false, false);
+        let counts = in_band.contains(&a);
+        sweep_line(grid.line(a), rays, margin_rel, &mut scratch, |_, iv| {
+            surface = true;
+            out.samples += 1;
+            let l = iv.length_m();
+            if counts {
+                out.min_all = out.min_all.min(l);
+            }
+            if iv.occluded() {
+                occluded = true;
+                out.occluded_samples += 1;
+                if counts {
+                    out.min_occ = out.min_occ.min(l);
+                }
+                out.occluded.push((iv.from_m as f32, iv.to_m as f32));
+            }
+        });
+        out.lines += surface as u64;
+        out.occluded_lines += occluded as u64;
+    }
+    out
 }
 
 /// [`visibility`] of a depth image sampled every `step` pixels (every valid
