@@ -873,6 +873,11 @@ fn cost_per_frame() {
         let sweep_only = fastest(&mut || {
             std::hint::black_box(visibility(&g, &geom, 0.2, &only));
         });
+        let two = VisibilityParams { threads: 2, ..p };
+        let sweep_two = fastest(&mut || {
+            std::hint::black_box(visibility(&g, &geom, 0.2, &two));
+        });
+        println!("step {step}: visibility on two threads {sweep_two:.0} µs");
         let mut u = 0.0;
         let query = fastest(&mut || u = v.unseen_at(v.spacing_unseen_m.unwrap_or(5.0)));
         println!(

@@ -636,34 +636,42 @@ pub fn visibility(
     let skip = ((grid.lines as f64 * (1.0 - band) * 0.5).floor() as usize).min(grid.lines / 2);
     let in_band = skip..grid.lines - skip;
     let margin = params.occluder_margin_rel;
-    // Contiguous runs of lines, one per thread, merged in line order.
-    let threads = params.threads.clamp(1, grid.lines);
-    let per = grid.lines.div_ceil(threads);
+    // Runs of `LINES_PER_RUN` lines dealt to the threads in turn (the
+    // occluders are rarely spread evenly over the frame), merged in line order.
     let runs: Vec<std::ops::Range<usize>> = (0..grid.lines)
-        .step_by(per)
-        .map(|a| a..(a + per).min(grid.lines))
+        .step_by(LINES_PER_RUN)
+        .map(|a| a..(a + LINES_PER_RUN).min(grid.lines))
         .collect();
-    let swept: Vec<Lines> = if runs.len() == 1 {
-        vec![sweep_lines(grid, &rays, margin, &in_band, runs[0].clone())]
+    let threads = params.threads.clamp(1, runs.len());
+    let swept: Vec<Lines> = if threads == 1 {
+        vec![sweep_lines(grid, &rays, margin, &in_band, 0..grid.lines)]
     } else {
-        std::thread::scope(|scope| {
-            let (rays, in_band) = (&rays, &in_band);
-            let others: Vec<_> = runs[1..]
-                .iter()
+        let deal = |t: usize| -> Vec<(usize, Lines)> {
+            (t..runs.len())
+                .step_by(threads)
                 .map(|r| {
-                    let r = r.clone();
-                    scope.spawn(move || sweep_lines(grid, rays, margin, in_band, r))
+                    (
+                        r,
+                        sweep_lines(grid, &rays, margin, &in_band, runs[r].clone()),
+                    )
                 })
-                .collect();
-            let mut all = vec![sweep_lines(grid, rays, margin, in_band, runs[0].clone())];
+                .collect()
+        };
+        let mut all: Vec<(usize, Lines)> = std::thread::scope(|scope| {
+            let others: Vec<_> = (1..threads).map(|t| scope.spawn(move || deal(t))).collect();
+            let mut all = deal(0);
             // A sweep does not panic on any input (its tests); if one did, the
             // panic is the caller's, as on a single thread.
-            all.extend(others.into_iter().map(|h| match h.join() {
-                Ok(l) => l,
-                Err(panic) => std::panic::resume_unwind(panic),
-            }));
+            for h in others {
+                match h.join() {
+                    Ok(l) => all.extend(l),
+                    Err(panic) => std::panic::resume_unwind(panic),
+                }
+            }
             all
-        })
+        });
+        all.sort_by_key(|(r, _)| *r);
+        all.into_iter().map(|(_, l)| l).collect()
     };
     let (mut min_all, mut min_occ) = (f64::INFINITY, f64::INFINITY);
     for l in swept {
@@ -687,6 +695,9 @@ pub fn visibility(
     }
     v
 }
+
+/// Lines a thread sweeps at a time when the sweep is split (`threads > 1`).
+const LINES_PER_RUN: usize = 8;
 
 /// What the sweep of a run of lines found: [`Visibility`]'s counts, the
 /// shortest intervals in the views band, and the occluded samples in line order.
