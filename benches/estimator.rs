@@ -59,22 +59,18 @@ fn bench(c: &mut Criterion) {
         g.bench_function("estimate_full", |b| {
             b.iter(|| est.estimate_at(black_box(&img), &intr, pitch, 1).unwrap())
         });
-        // The sweep on every pixel (`alfd sim`'s setting), on one thread and
-        // on two (`visibility_threads`: the same result, less latency).
-        for threads in [1usize, 2] {
-            let mut est_all = Estimator::new(EstimatorParams {
-                visibility_samples_max: w * h,
-                visibility_threads: threads,
-                ..params.clone()
-            });
-            g.bench_function(format!("estimate_every_pixel_threads_{threads}"), |b| {
-                b.iter(|| {
-                    est_all
-                        .estimate_at(black_box(&img), &intr, pitch, 1)
-                        .unwrap()
-                })
-            });
-        }
+        // The sweep on every pixel (`alfd sim`'s setting).
+        let mut est_all = Estimator::new(EstimatorParams {
+            visibility_samples_max: w * h,
+            ..params.clone()
+        });
+        g.bench_function("estimate_every_pixel", |b| {
+            b.iter(|| {
+                est_all
+                    .estimate_at(black_box(&img), &intr, pitch, 1)
+                    .unwrap()
+            })
+        });
         let no_score = EstimatorParams {
             score: None,
             ..params.clone()

@@ -213,7 +213,6 @@ pub struct RawEstimator {
     pub sspa_iterations: Option<i64>,
     pub sspa_trim_sigma: Option<f64>,
     pub visibility_samples_max: Option<i64>,
-    pub visibility_threads: Option<i64>,
 }
 
 #[derive(Debug, Default, Deserialize)]
@@ -358,9 +357,6 @@ impl RawConfig {
         let e = &self.estimator;
         if let Some(n) = e.visibility_samples_max {
             p.visibility_samples_max = count("estimator.visibility_samples_max", n)?;
-        }
-        if let Some(n) = e.visibility_threads {
-            p.visibility_threads = count("estimator.visibility_threads", n)?;
         }
         set!(e.valid_fraction_min, p.valid_fraction_min);
         set!(e.percentile_low, p.percentile_low);
@@ -894,7 +890,7 @@ mod tests {
         let c = Config::from_text(
             "[sampling]\nmodel = \"sspa\"\nocclusion_max = 0.02\nalso = [\"occlusion\"]\n\
              [estimator]\ndecimation = \"auto\"\ndecimation_budget = 0.1\ndecimation_recalibrate_frames = 90\n\
-             track_axis = \"columns\"\nvisibility_threads = 4\n\
+             track_axis = \"columns\"\n\
              [score]\npitch_candidates_deg = [-10.0, 10.0, 10.0]\n",
             "x.toml",
         )
@@ -904,7 +900,6 @@ mod tests {
         assert_eq!(c.occlusion_max, 0.02);
         assert!(c.with_occlusion);
         assert_eq!(c.track_axis, TrackAxis::Columns);
-        assert_eq!(c.visibility_threads, 4);
         assert!(
             matches!(c.decimation, Decimation::Auto { budget, recalibrate_frames, .. }
             if budget == 0.1 && recalibrate_frames == 90)
@@ -936,17 +931,6 @@ mod tests {
             assert!(
                 e.to_string()
                     .contains("estimator.decimation_recalibrate_frames"),
-                "{e}"
-            );
-        }
-        for threads in ["0", "-1", "65"] {
-            let e = Config::from_text(
-                &format!("[estimator]\nvisibility_threads = {threads}\n"),
-                "x.toml",
-            )
-            .unwrap_err();
-            assert!(
-                e.to_string().contains("estimator.visibility_threads"),
                 "{e}"
             );
         }

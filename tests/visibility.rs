@@ -585,7 +585,6 @@ fn params() -> impl Strategy<Value = VisibilityParams> {
             phases,
             occluder_margin_rel: margin,
             views_band: 1.0,
-            threads: 1,
         })
 }
 
@@ -678,29 +677,6 @@ fn check_outputs(v: &Visibility) -> Result<(), TestCaseError> {
 
 proptest! {
     #![proptest_config(config(20))]
-
-    /// Lines swept on several threads give the bits of one thread: counts,
-    /// shortest intervals and the occluded samples in line order.
-    #[test]
-    fn any_thread_count_gives_the_same_bits(
-        c in random_case(),
-        p in params(),
-        threads in 2usize..7,
-        band in prop_oneof![Just(1.0), 0.0f64..1.0],
-    ) {
-        let p = VisibilityParams { views_band: band, ..p };
-        let one = visibility_of_image(&c.img, &c.intr, c.axis, c.step, c.pitch_rad, &p);
-        let many = visibility_of_image(
-            &c.img,
-            &c.intr,
-            c.axis,
-            c.step,
-            c.pitch_rad,
-            &VisibilityParams { threads, ..p },
-        );
-        // `Visibility`'s `==` on its floats: none is NaN (the test above).
-        prop_assert_eq!(one, many);
-    }
 
     /// Finite, non-negative, in range and monotone on random maps, focal
     /// lengths, pitches (beyond ±90° too), decimations and track axes.
@@ -873,11 +849,6 @@ fn cost_per_frame() {
         let sweep_only = fastest(&mut || {
             std::hint::black_box(visibility(&g, &geom, 0.2, &only));
         });
-        let two = VisibilityParams { threads: 2, ..p };
-        let sweep_two = fastest(&mut || {
-            std::hint::black_box(visibility(&g, &geom, 0.2, &two));
-        });
-        println!("step {step}: visibility on two threads {sweep_two:.0} µs");
         let mut u = 0.0;
         let query = fastest(&mut || u = v.unseen_at(v.spacing_unseen_m.unwrap_or(5.0)));
         println!(

@@ -627,7 +627,6 @@ impl Estimator {
                     views_per_point_min: p.quality.views_per_point_min,
                     phases: DEFAULT_PHASES,
                     views_band: 0.5,
-                    threads: p.visibility_threads,
                     ..VisibilityParams::default()
                 },
             );

@@ -210,10 +210,6 @@ pub struct EstimatorParams {
     /// sample is ~25 reads, and at 640 × 480 it starved the daemon's camera
     /// and writer (docs/error-vs-runtime.md has the error it costs).
     pub visibility_samples_max: usize,
-    /// Threads the visibility sweep's lines are split over (1: the estimator's
-    /// own). The same result at any count; it buys latency on a companion
-    /// computer with idle cores, not CPU.
-    pub visibility_threads: usize,
 }
 
 impl Default for EstimatorParams {
@@ -251,7 +247,6 @@ impl Default for EstimatorParams {
             sspa_iterations: 3,
             sspa_trim_sigma: 2.5,
             visibility_samples_max: 80_000,
-            visibility_threads: 1,
         }
     }
 }
@@ -465,11 +460,6 @@ impl EstimatorParams {
             p.visibility_samples_max >= 100,
             "estimator.visibility_samples_max",
             || format!("must be at least 100, got {}", p.visibility_samples_max),
-        )?;
-        check(
-            (1..=64).contains(&p.visibility_threads),
-            "estimator.visibility_threads",
-            || format!("must be 1 to 64, got {}", p.visibility_threads),
         )?;
         check(
             (1..=100).contains(&p.sspa_iterations),

@@ -29,10 +29,6 @@ pub struct VisibilityParams {
     /// occluders beside the line, and points at the lateral edges are side
     /// overlap's business, not the spacing's (the truth samples the middle half).
     pub views_band: f64,
-    /// Threads the lines are swept on (1: the caller's alone). Lines are
-    /// independent and their results are merged in line order, so the result
-    /// has the same bits at any count; only the latency changes.
-    pub threads: usize,
 }
 
 impl Default for VisibilityParams {
@@ -43,7 +39,6 @@ impl Default for VisibilityParams {
             phases: DEFAULT_PHASES,
             occluder_margin_rel: 1e-3,
             views_band: 1.0,
-            threads: 1,
         }
     }
 }
@@ -636,53 +631,13 @@ pub fn visibility(
     let skip = ((grid.lines as f64 * (1.0 - band) * 0.5).floor() as usize).min(grid.lines / 2);
     let in_band = skip..grid.lines - skip;
     let margin = params.occluder_margin_rel;
-    // Runs of `LINES_PER_RUN` lines dealt to the threads in turn (the
-    // occluders are rarely spread evenly over the frame), merged in line order.
-    let runs: Vec<std::ops::Range<usize>> = (0..grid.lines)
-        .step_by(LINES_PER_RUN)
-        .map(|a| a..(a + LINES_PER_RUN).min(grid.lines))
-        .collect();
-    let threads = params.threads.clamp(1, runs.len());
-    let swept: Vec<Lines> = if threads == 1 {
-        vec![sweep_lines(grid, &rays, margin, &in_band, 0..grid.lines)]
-    } else {
-        let deal = |t: usize| -> Vec<(usize, Lines)> {
-            (t..runs.len())
-                .step_by(threads)
-                .map(|r| {
-                    (
-                        r,
-                        sweep_lines(grid, &rays, margin, &in_band, runs[r].clone()),
-                    )
-                })
-                .collect()
-        };
-        let mut all: Vec<(usize, Lines)> = std::thread::scope(|scope| {
-            let others: Vec<_> = (1..threads).map(|t| scope.spawn(move || deal(t))).collect();
-            let mut all = deal(0);
-            // A sweep does not panic on any input (its tests); if one did, the
-            // panic is the caller's, as on a single thread.
-            for h in others {
-                match h.join() {
-                    Ok(l) => all.extend(l),
-                    Err(panic) => std::panic::resume_unwind(panic),
-                }
-            }
-            all
-        });
-        all.sort_by_key(|(r, _)| *r);
-        all.into_iter().map(|(_, l)| l).collect()
-    };
-    let (mut min_all, mut min_occ) = (f64::INFINITY, f64::INFINITY);
-    for l in swept {
-        v.lines += l.lines;
-        v.samples += l.samples;
-        v.occluded_samples += l.occluded_samples;
-        v.occluded_lines += l.occluded_lines;
-        min_all = min_all.min(l.min_all);
-        min_occ = min_occ.min(l.min_occ);
-        v.occluded.extend(l.occluded);
-    }
+    let l = sweep_lines(grid, &rays, margin, &in_band, 0..grid.lines);
+    v.lines = l.lines;
+    v.samples = l.samples;
+    v.occluded_samples = l.occluded_samples;
+    v.occluded_lines = l.occluded_lines;
+    v.occluded = l.occluded;
+    let (min_all, min_occ) = (l.min_all, l.min_occ);
     let k = v.views_per_point_min as f64;
     v.interval_min_m = min_all.is_finite().then_some(min_all);
     v.occluded_interval_min_m = min_occ.is_finite().then_some(min_occ);
@@ -696,11 +651,8 @@ pub fn visibility(
     v
 }
 
-/// Lines a thread sweeps at a time when the sweep is split (`threads > 1`).
-const LINES_PER_RUN: usize = 8;
-
-/// What the sweep of a run of lines found: [`Visibility`]'s counts, the
-/// shortest intervals in the views band, and the occluded samples in line order.
+/// What the sweep of the lines found: [`Visibility`]'s counts, the shortest
+/// intervals in the views band, and the occluded samples in line order.
 struct Lines {
     lines: u64,
     samples: u64,
