@@ -623,6 +623,8 @@ pub fn visibility(
         return v;
     }
     let rays = TrackRays::new(geom, &grid.along_idx, pitch_rad);
+    let mut scratch = LineScratch::default();
+    let (mut min_all, mut min_occ) = (f64::INFINITY, f64::INFINITY);
     let band = if params.views_band.is_finite() {
         params.views_band.clamp(0.0, 1.0)
     } else {
@@ -630,14 +632,34 @@ pub fn visibility(
     };
     let skip = ((grid.lines as f64 * (1.0 - band) * 0.5).floor() as usize).min(grid.lines / 2);
     let in_band = skip..grid.lines - skip;
-    let margin = params.occluder_margin_rel;
-    let l = sweep_lines(grid, &rays, margin, &in_band, 0..grid.lines);
-    v.lines = l.lines;
-    v.samples = l.samples;
-    v.occluded_samples = l.occluded_samples;
-    v.occluded_lines = l.occluded_lines;
-    v.occluded = l.occluded;
-    let (min_all, min_occ) = (l.min_all, l.min_occ);
+    for a in 0..grid.lines {
+        let (mut surface, mut occluded) = (false, false);
+        let counts = in_band.contains(&a);
+        sweep_line(
+            grid.line(a),
+            &rays,
+            params.occluder_margin_rel,
+            &mut scratch,
+            |_, iv| {
+                surface = true;
+                v.samples += 1;
+                let l = iv.length_m();
+                if counts {
+                    min_all = min_all.min(l);
+                }
+                if iv.occluded() {
+                    occluded = true;
+                    v.occluded_samples += 1;
+                    if counts {
+                        min_occ = min_occ.min(l);
+                    }
+                    v.occluded.push((iv.from_m as f32, iv.to_m as f32));
+                }
+            },
+        );
+        v.lines += surface as u64;
+        v.occluded_lines += occluded as u64;
+    }
     let k = v.views_per_point_min as f64;
     v.interval_min_m = min_all.is_finite().then_some(min_all);
     v.occluded_interval_min_m = min_occ.is_finite().then_some(min_occ);
@@ -649,60 +671,6 @@ pub fn visibility(
         v.spacing_unseen_m = unseen_spacing(&v.occluded, k_max, v.phases);
     }
     v
-}
-
-/// What the sweep of the lines found: [`Visibility`]'s counts, the shortest
-/// intervals in the views band, and the occluded samples in line order.
-struct Lines {
-    lines: u64,
-    samples: u64,
-    occluded_samples: u64,
-    occluded_lines: u64,
-    min_all: f64,
-    min_occ: f64,
-    occluded: Vec<(f32, f32)>,
-}
-
-fn sweep_lines(
-    grid: &InvGrid,
-    rays: &TrackRays,
-    margin_rel: f64,
-    in_band: &std::ops::Range<usize>,
-    lines: std::ops::Range<usize>,
-) -> Lines {
-    let mut out = Lines {
-        lines: 0,
-        samples: 0,
-        occluded_samples: 0,
-        occluded_lines: 0,
-        min_all: f64::INFINITY,
-        min_occ: f64::INFINITY,
-        occluded: Vec::new(),
-    };
-    let mut scratch = LineScratch::default();
-    for a in lines {
-        let (mut surface, mut occluded) = (false, false);
-        let counts = in_band.contains(&a);
-        sweep_line(grid.line(a), rays, margin_rel, &mut scratch, |_, iv| {
-            surface = true;
-            out.samples += 1;
-            let l = iv.length_m();
-            if counts {
-                out.min_all = out.min_all.min(l);
-            }
-            if iv.occluded() {
-                occluded = true;
-                out.occluded_samples += 1;
-                if counts {
-                    out.min_occ = out.min_occ.min(l);
-                }
-                out.occluded.push((iv.from_m as f32, iv.to_m as f32));
-            }
-        });
-        out.lines += surface as u64;
-        out.occluded_lines += occluded as u64;
-    }
-    out
 }
 
 /// [`visibility`] of a depth image sampled every `step` pixels (every valid
