@@ -197,7 +197,8 @@ impl Frame {
         let data = if sensor.noise_per_m > 0.0 || sensor.dropout > 0.0 {
             self.z16_data_noisy(sensor)
         } else {
-            z16_exact(&self.depth_m, sensor.scale_m, sensor.max_range_m)
+            // No noise, no dropout: the range and the conversion in one pass.
+            crate::synth::to_z16_within(&self.depth_m, sensor.scale_m, sensor.max_range_m)
         };
         DepthImage::new(
             self.width,
@@ -238,30 +239,6 @@ impl Frame {
     pub fn rgb8(&self) -> Vec<u8> {
         self.rgb.iter().flat_map(|p| p.map(byte_of)).collect()
     }
-}
-
-/// Z16 of exact depth (no noise, no dropout) in one pass: what
-/// [`Frame::z16`]'s stages give without them (0 beyond `max_range_m`, for sky,
-/// NaN and anything that rounds outside 1..=65534), bit for bit. Written to
-/// vectorise: every pixel computes its value and keeps it or 0, and the
-/// rounding is a truncating cast (exact where it is kept) instead of a call.
-fn z16_exact(depth_m: &[f32], scale_m: f64, max_range_m: f64) -> Vec<u16> {
-    depth_m
-        .iter()
-        .map(|&d| {
-            let q = d as f64 / scale_m;
-            let keep =
-                d.is_finite() && d as f64 <= max_range_m && q >= 0.5 && q < u16::MAX as f64 - 0.5;
-            // Saturates (and wraps below) where `keep` is false.
-            let t = q as i32;
-            let r = t.wrapping_add((q - t as f64 >= 0.5) as i32);
-            if keep {
-                r as u16
-            } else {
-                0
-            }
-        })
-        .collect()
 }
 
 /// `(c.clamp(0, 1) · 255).round()` as a byte (NaN: 0), without libm's `roundf`
@@ -653,8 +630,8 @@ mod tests {
         d.extend((0..100_000u32).map(|i| f32::from_bits(i.wrapping_mul(0x9E37_79B9) >> 1)));
         d.extend([
             65.0,
-            65.0f32.next_down_bits(),
-            65.0f32.next_up_bits(),
+            f32::from_bits(65.0f32.to_bits() - 1),
+            f32::from_bits(65.0f32.to_bits() + 1),
             65.5,
             65.535,
             65.5345,
@@ -672,23 +649,10 @@ mod tests {
                 ..SensorModel::default()
             };
             assert_eq!(
-                z16_exact(&frame.depth_m, scale_m, max_range_m),
+                crate::synth::to_z16_within(&frame.depth_m, scale_m, max_range_m),
                 frame.z16_data_noisy(&sensor),
                 "scale {scale_m} range {max_range_m}"
             );
-        }
-    }
-
-    trait Neighbours {
-        fn next_down_bits(self) -> Self;
-        fn next_up_bits(self) -> Self;
-    }
-    impl Neighbours for f32 {
-        fn next_down_bits(self) -> f32 {
-            f32::from_bits(self.to_bits() - 1)
-        }
-        fn next_up_bits(self) -> f32 {
-            f32::from_bits(self.to_bits() + 1)
         }
     }
 

@@ -153,6 +153,14 @@ impl TruthStream {
                 let mut poses: Vec<TruthPose> = Vec::new();
                 let mut out: Vec<TrackSample> = Vec::new();
                 let mut estimator = Estimator::new(params.clone());
+                // The poses from the first not yet estimated up to `end`.
+                let estimate_to = |end: usize,
+                                   poses: &[TruthPose],
+                                   estimator: &mut Estimator,
+                                   out: &mut Vec<TrackSample>| {
+                    let range = out.len()..end;
+                    estimate_range(&scene, intrinsics, &params, poses, range, estimator, out)
+                };
                 // While the flight runs: each pose once its successor is known
                 // (its flight axis needs both neighbours), on the worker's own
                 // thread so the flight's renders keep rayon's pool.
@@ -161,31 +169,11 @@ impl TruthStream {
                     poses.extend(rx.try_iter());
                     let ready = poses.len() - 1;
                     if ready > out.len() {
-                        let range = out.len()..ready;
-                        pool.install(|| {
-                            estimate_range(
-                                &scene,
-                                intrinsics,
-                                &params,
-                                &poses,
-                                range,
-                                &mut estimator,
-                                &mut out,
-                            )
-                        });
+                        pool.install(|| estimate_to(ready, &poses, &mut estimator, &mut out));
                     }
                 }
                 // The flight is over: the rest on every core.
-                let range = out.len()..poses.len();
-                estimate_range(
-                    &scene,
-                    intrinsics,
-                    &params,
-                    &poses,
-                    range,
-                    &mut estimator,
-                    &mut out,
-                );
+                estimate_to(poses.len(), &poses, &mut estimator, &mut out);
                 (poses, out)
             })
             .ok()?;
