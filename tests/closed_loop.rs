@@ -21,15 +21,25 @@ fn scene(name: &str) -> Scene {
         .expect("a shipped scene")
 }
 
-/// The survey camera at `x_m`: the closed loop's view (every `step`-th pixel)
-/// and the truth's.
-fn views(s: &Scene, x_m: f64, w: usize, h: usize, step: usize) -> (View, TruthView) {
+/// How the closed loop samples a frame: every `n`-th pixel, or as the daemon
+/// and the evaluation keep it ([`DepthSnapshot::kept`], about 4800 samples).
+#[derive(Debug, Clone, Copy)]
+enum Sampling {
+    Step(usize),
+    Kept,
+}
+
+/// The survey camera at `x_m`: the closed loop's view and the truth's.
+fn views(s: &Scene, x_m: f64, w: usize, h: usize, sampling: Sampling) -> (View, TruthView) {
     let cam = survey_camera(s, x_m, w, h);
     let depth = render_depth(s, &cam);
     let img = DepthImage::new(w, h, DepthData::Metres(depth.clone())).unwrap();
     // World (x forward, y left, z up) → NED; the camera pitches about east.
     let v = View {
-        depth: DepthSnapshot::new(&img, &cam.intrinsics, step),
+        depth: match sampling {
+            Sampling::Step(n) => DepthSnapshot::new(&img, &cam.intrinsics, n),
+            Sampling::Kept => DepthSnapshot::kept(&img, &cam.intrinsics),
+        },
         cam_to_ned: DMat3::from_rotation_y(s.survey.pitch_rad),
         pos_ned_m: DVec3::new(x_m, -s.survey.y_m, -s.survey.altitude_m),
     };
@@ -61,10 +71,10 @@ fn flat_ground_has_no_parallax_span_and_hides_nothing() {
     assert_eq!(s.survey.pitch_rad, 0.0);
     let (w, h) = (160, 120);
     let x0 = s.survey.start_x_m + 5.0;
-    let (a, _) = views(&s, x0, w, h, 1);
+    let (a, _) = views(&s, x0, w, h, Sampling::Step(1));
     let f = survey_camera(&s, x0, w, h).intrinsics.focal_px();
     for b in [0.5, 2.0, 8.0] {
-        let (v, _) = views(&s, x0 + b, w, h, 1);
+        let (v, _) = views(&s, x0 + b, w, h, Sampling::Step(1));
         let p = pair(&a, &v);
         let span = p.parallax_span_px.expect("the ground is seen by both");
         assert!(span < 0.05, "b = {b}: span {span} px on flat ground");
@@ -76,7 +86,7 @@ fn flat_ground_has_no_parallax_span_and_hides_nothing() {
             "b = {b}: in view {} against {overlap}",
             p.in_view_fraction
         );
-        let (m, _) = views(&s, x0 + 0.5 * b, w, h, 1);
+        let (m, _) = views(&s, x0 + 0.5 * b, w, h, Sampling::Step(1));
         assert_eq!(unseen_fraction(&m, &a, &v), 0.0, "b = {b}");
     }
 }
@@ -93,7 +103,7 @@ fn the_loop_stops_at_the_parallax_target() {
         unseen_fraction_max: 0.002,
     };
     let mut cl = ClosedLoop::default();
-    let (a, _) = views(&s, x0, w, h, 2);
+    let (a, _) = views(&s, x0, w, h, Sampling::Step(2));
     let step_m = 0.1;
     assert!(
         cl.on_frame(a.clone(), 0.0, step_m, &targets).is_none(),
@@ -103,7 +113,7 @@ fn the_loop_stops_at_the_parallax_target() {
     let mut stop = None;
     for k in 1..200 {
         let d = k as f64 * step_m;
-        let (v, _) = views(&s, x0 + d, w, h, 2);
+        let (v, _) = views(&s, x0 + d, w, h, Sampling::Step(2));
         let m = cl.on_frame(v.clone(), d, step_m, &targets).unwrap();
         assert!((m.distance_m - d).abs() < 1e-12);
         if m.spacing_m.is_some_and(|sp| d + step_m > sp) {
@@ -130,11 +140,12 @@ struct Errors {
     unseen: Vec<(f64, f64)>,
 }
 
-/// Closed loop against the truth on one scene: baselines up to the distance
-/// at which the truth's parallax reaches 8 px, at three places along the line.
-fn against_truth(name: &str) -> Errors {
+/// Closed loop against the truth on one scene, at `1/shrink` of the survey's
+/// resolution: baselines up to the distance at which the truth's parallax
+/// reaches 8 px, at three places along the line.
+fn against_truth(name: &str, shrink: usize, sampling: Sampling) -> Errors {
     let s = scene(name);
-    let (w, h) = (s.survey.width / 2, s.survey.height / 2);
+    let (w, h) = (s.survey.width / shrink, s.survey.height / shrink);
     let truth = Truth::new(&s, geometry(&s, w, h));
     let mut e = Errors {
         parallax: Vec::new(),
@@ -143,13 +154,13 @@ fn against_truth(name: &str) -> Errors {
     let len = s.survey.end_x_m - s.survey.start_x_m;
     for frac in [0.2, 0.5, 0.8] {
         let x0 = s.survey.start_x_m + frac * len;
-        let (a, ta) = views(&s, x0, w, h, 1);
+        let (a, ta) = views(&s, x0, w, h, sampling);
         for b in [0.25, 0.5, 1.0, 2.0, 4.0, 8.0] {
             if x0 + b > s.survey.end_x_m {
                 continue;
             }
-            let (v, tv) = views(&s, x0 + b, w, h, 1);
-            let (m, tm) = views(&s, x0 + 0.5 * b, w, h, 1);
+            let (v, tv) = views(&s, x0 + b, w, h, sampling);
+            let (m, tm) = views(&s, x0 + 0.5 * b, w, h, sampling);
             let c = truth.classify(&tm, &ta, &tv, false);
             let p = pair(&a, &v);
             if let (Some(t), Some(got)) = (c.parallax_span_px, p.parallax_span_px) {
@@ -165,7 +176,7 @@ fn against_truth(name: &str) -> Errors {
             if tu < 0.5 * TARGET {
                 assert!(
                     got <= TARGET,
-                    "{name} x {x0} b {b}: {got} unseen where the truth has {tu}"
+                    "{name} ({sampling:?}) x {x0} b {b}: {got} unseen where the truth has {tu}"
                 );
             }
         }
@@ -187,7 +198,7 @@ fn median(v: &mut [f64]) -> f64 {
 fn closed_loop_geometry_against_the_truth() {
     let mut held_out_p = Vec::new();
     for name in SCENES {
-        let e = against_truth(name);
+        let e = against_truth(name, 2, Sampling::Step(1));
         let mut p = e.parallax.clone();
         let worst = p.iter().cloned().fold(0.0, f64::max);
         let unseen: Vec<String> = e
@@ -214,4 +225,58 @@ fn closed_loop_geometry_against_the_truth() {
         med_p <= 0.10 && worst_p <= 0.30,
         "parallax: median {med_p}, worst {worst_p}"
     );
+}
+
+/// As the daemon and `alfd eval` run it: the survey's full resolution, each
+/// frame kept at about 4800 samples (every third pixel at 200 × 150), along
+/// the whole line every 0.2 m at baselines of 0.4 and 1.2 m (`canyon`'s and
+/// `tree`'s target spacings). Below half the unseen target by the truth, no
+/// scene may ask for a capture. Until a kept sample's block also kept its
+/// farthest depth, `building` did at x = 3.0 m (0.78 % unseen, truth 0.003 %)
+/// and `canyon` from x = −9.4 m on (1.5 %, truth 0, as in `alfd eval`): the
+/// west block's wall seen edge-on behind the slab, whose depth changes by
+/// more than the seen tolerance between a sample and the pixel beside it.
+#[test]
+fn kept_depth_raises_no_false_alarm() {
+    const GRID_M: f64 = 0.2;
+    for name in SCENES {
+        let s = scene(name);
+        let (w, h) = (s.survey.width, s.survey.height);
+        let truth = Truth::new(&s, geometry(&s, w, h));
+        let n = ((s.survey.end_x_m - s.survey.start_x_m) / GRID_M).floor() as usize + 1;
+        let mut cache: Vec<Option<(View, TruthView)>> = (0..n).map(|_| None).collect();
+        let mut view = |i: usize| -> (View, TruthView) {
+            cache[i]
+                .get_or_insert_with(|| {
+                    views(
+                        &s,
+                        s.survey.start_x_m + i as f64 * GRID_M,
+                        w,
+                        h,
+                        Sampling::Kept,
+                    )
+                })
+                .clone()
+        };
+        let (mut pairs, mut worst, mut missed) = (0, 0.0f64, 0);
+        for k in [2, 6] {
+            for i in 0..n.saturating_sub(k) {
+                let ((a, ta), (v, tv), (m, tm)) = (view(i), view(i + k), view(i + k / 2));
+                let tu = truth.classify(&tm, &ta, &tv, false).unseen_fraction();
+                let got = unseen_fraction(&m, &a, &v);
+                pairs += 1;
+                worst = worst.max(got);
+                missed += (tu > TARGET && got <= TARGET) as usize;
+                if tu < 0.5 * TARGET {
+                    assert!(
+                        got <= TARGET,
+                        "{name} x {:.1} b {:.1}: {got} unseen where the truth has {tu}",
+                        s.survey.start_x_m + i as f64 * GRID_M,
+                        k as f64 * GRID_M
+                    );
+                }
+            }
+        }
+        eprintln!("{name:<10} kept: {pairs} intervals, worst unseen by the loop {worst:.5}, {missed} over the target by the truth and not by the loop");
+    }
 }

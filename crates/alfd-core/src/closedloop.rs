@@ -34,7 +34,14 @@ pub struct DepthSnapshot {
     pub principal_px: (f64, f64),
     pub width: usize,
     pub height: usize,
+    /// The pixel at the top left of each block of `step × step` pixels.
     pub depth_m: Vec<f32>,
+    /// The farthest valid depth in each block (NaN: none valid). What the
+    /// frame shows behind its samples: a surface strip narrower than the step
+    /// (a street floor between walls, a wall seen edge-on, where the depth
+    /// changes by more than the seen tolerance from one pixel to the next)
+    /// is in it when no sample lands on it.
+    pub far_m: Vec<f32>,
 }
 
 /// Samples of a frame the closed loop keeps, about (a 640 × 480 frame every
@@ -54,27 +61,21 @@ impl DepthSnapshot {
     pub fn new(image: &DepthImage, intr: &Intrinsics, step: usize) -> DepthSnapshot {
         let step = step.max(1);
         let (w, h) = (image.width(), image.height());
+        let (depth_m, far_m) = match image.data() {
+            DepthData::Z16 { data, scale_m } => sample(w, h, step, |k| match data[k] {
+                0 | u16::MAX => f32::NAN,
+                z => (z as f64 * scale_m) as f32,
+            }),
+            DepthData::Metres(d) => sample(w, h, step, |k| {
+                let z = d[k];
+                if z > 0.0 {
+                    z
+                } else {
+                    f32::NAN
+                }
+            }),
+        };
         let (cols, rows) = (w.div_ceil(step), h.div_ceil(step));
-        let mut depth_m = Vec::with_capacity(cols * rows);
-        for r in (0..h).step_by(step) {
-            for c in (0..w).step_by(step) {
-                let k = r * w + c;
-                depth_m.push(match image.data() {
-                    DepthData::Z16 { data, scale_m } => match data[k] {
-                        0 | u16::MAX => f32::NAN,
-                        z => (z as f64 * scale_m) as f32,
-                    },
-                    DepthData::Metres(d) => {
-                        let z = d[k];
-                        if z > 0.0 {
-                            z
-                        } else {
-                            f32::NAN
-                        }
-                    }
-                });
-            }
-        }
         DepthSnapshot {
             step,
             cols,
@@ -84,12 +85,14 @@ impl DepthSnapshot {
             width: w,
             height: h,
             depth_m,
+            far_m,
         }
     }
 
     /// The four samples around the image point `(u, v)` (px, pixel `i`
-    /// spans `[i, i + 1)`), `None` outside the image.
-    fn around(&self, u: f64, v: f64) -> Option<[f32; 4]> {
+    /// spans `[i, i + 1)`) and the farthest depth of the block holding its
+    /// pixel, `None` outside the image.
+    fn around(&self, u: f64, v: f64) -> Option<[f32; 5]> {
         if !(u >= 0.0 && v >= 0.0 && u < self.width as f64 && v < self.height as f64) {
             return None;
         }
@@ -101,8 +104,34 @@ impl DepthSnapshot {
         );
         let (c1, r1) = ((c0 + 1).min(self.cols - 1), (r0 + 1).min(self.rows - 1));
         let d = |c: usize, r: usize| self.depth_m[r * self.cols + c];
-        Some([d(c0, r0), d(c1, r0), d(c0, r1), d(c1, r1)])
+        // `u < width`, so the block is in range.
+        let (bc, br) = (u as usize / self.step, v as usize / self.step);
+        let far = self.far_m[br * self.cols + bc];
+        Some([d(c0, r0), d(c1, r0), d(c0, r1), d(c1, r1), far])
     }
+}
+
+/// Every `step`-th pixel of a `w × h` frame, and the farthest of each block
+/// (`metres(k)`: pixel `k` in metres, NaN invalid). One pass over the frame.
+fn sample(w: usize, h: usize, step: usize, metres: impl Fn(usize) -> f32) -> (Vec<f32>, Vec<f32>) {
+    let (cols, rows) = (w.div_ceil(step), h.div_ceil(step));
+    let mut depth_m = Vec::with_capacity(cols * rows);
+    for r in (0..h).step_by(step) {
+        for c in (0..w).step_by(step) {
+            depth_m.push(metres(r * w + c));
+        }
+    }
+    // NaN never wins `max`, so a block keeps NaN only when all of it is invalid.
+    let mut far_m = vec![f32::NAN; cols * rows];
+    for r in 0..h {
+        let blocks = &mut far_m[(r / step) * cols..][..cols];
+        for (bc, far) in blocks.iter_mut().enumerate() {
+            for c in bc * step..((bc + 1) * step).min(w) {
+                *far = far.max(metres(r * w + c));
+            }
+        }
+    }
+    (depth_m, far_m)
 }
 
 /// A snapshot where it was taken: OpenCV camera axes (x right, y down, z along
@@ -145,8 +174,8 @@ impl View {
     }
 
     /// Whether this view sees `p`: inside the frame and not behind the surface
-    /// its depth shows there (2 % + 5 cm, the truth's tolerance). Four invalid
-    /// samples there are `Unknown`.
+    /// its depth shows there (2 % + 5 cm, the truth's tolerance). No valid
+    /// depth around it is `Unknown`.
     fn sees(&self, p: DVec3) -> Sight {
         let Some((u, v, z)) = self.project(p) else {
             return Sight::Outside;
@@ -157,9 +186,10 @@ impl View {
         if ds.iter().all(|d| d.is_nan()) {
             return Sight::Unknown;
         }
-        // Seen if any sample around the projection shows the point's surface:
-        // requiring more hides a strip along every depth edge (spurious
-        // captures); the cost is that disocclusions one sample wide go unseen
+        // Seen if any sample around the projection, or any pixel of its block,
+        // shows the point's surface: requiring more hides a strip along every
+        // depth edge and on walls seen edge-on (spurious captures); the cost
+        // is that disocclusions narrower than a block go unseen
         // (tests/closed_loop.rs measures both against the truth).
         if ds
             .iter()
@@ -389,5 +419,58 @@ impl ClosedLoop {
             });
         }
         Some(m)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn metres(w: usize, h: usize, d: Vec<f32>) -> DepthImage {
+        DepthImage::new(w, h, DepthData::Metres(d)).unwrap()
+    }
+
+    #[test]
+    fn a_block_keeps_its_farthest_valid_depth() {
+        // 5 × 3 at step 2: blocks of 2 × 2, the last column and row partial.
+        #[rustfmt::skip]
+        let d = vec![
+            1.0, 2.0,      0.0, f32::NAN, 7.0,
+            3.0, 0.5,      -1.0, 0.0,     f32::INFINITY,
+            4.0, f32::NAN, 0.0, 0.0,      6.0,
+        ];
+        let intr = Intrinsics::from_focal_px(5, 3, 10.0, None).unwrap();
+        let s = DepthSnapshot::new(&metres(5, 3, d), &intr, 2);
+        assert_eq!((s.cols, s.rows), (3, 2));
+        assert_eq!(s.depth_m[0], 1.0);
+        assert!(s.depth_m[1].is_nan(), "no return at the sample");
+        assert_eq!(s.far_m[0], 3.0);
+        assert!(s.far_m[1].is_nan(), "no valid pixel in the block");
+        assert_eq!(s.far_m[2], f32::INFINITY, "sky is the farthest");
+        assert_eq!(s.far_m[3], 4.0);
+        assert!(s.far_m[4].is_nan());
+        assert_eq!(s.far_m[5], 6.0);
+    }
+
+    #[test]
+    fn a_surface_between_the_samples_is_seen() {
+        // A wall at 10 m everywhere but one column at 30 m that no sample
+        // (every fourth pixel) lands on: a point on it is seen through the
+        // block's farthest depth, a point behind the wall elsewhere is not.
+        let (w, h) = (16, 8);
+        let d: Vec<f32> = (0..w * h)
+            .map(|k| if k % w == 6 { 30.0 } else { 10.0 })
+            .collect();
+        let intr = Intrinsics::from_focal_px(w, h, 20.0, None).unwrap();
+        let view = View {
+            depth: DepthSnapshot::new(&metres(w, h, d), &intr, 4),
+            cam_to_ned: DMat3::IDENTITY,
+            pos_ned_m: DVec3::ZERO,
+        };
+        let (cx, cy) = intr.principal_px();
+        let at = |u: f64, z: f64| DVec3::new((u - cx) / 20.0 * z, (4.5 - cy) / 20.0 * z, z);
+        assert_eq!(view.sees(at(6.5, 30.0)), Sight::Seen);
+        assert_eq!(view.sees(at(10.5, 30.0)), Sight::Hidden);
+        assert_eq!(view.sees(at(10.5, 10.0)), Sight::Seen);
     }
 }
