@@ -213,6 +213,7 @@ pub struct RawEstimator {
     pub sspa_iterations: Option<i64>,
     pub sspa_trim_sigma: Option<f64>,
     pub visibility_samples_max: Option<i64>,
+    pub threads: Option<i64>,
 }
 
 #[derive(Debug, Default, Deserialize)]
@@ -578,6 +579,9 @@ impl Default for CaptureConfig {
 #[derive(Debug, Clone, Default)]
 pub struct Config {
     pub estimator: EstimatorParams,
+    /// `[estimator] threads`: threads the visibility sweep runs on in the
+    /// daemon's estimator (1, or 0 as `Default` gives: its own thread only).
+    pub estimator_threads: usize,
     /// `None` without a `[mavlink]` section (estimate, eval).
     pub link: Option<LinkConfig>,
     pub camera: SourceConfig,
@@ -783,6 +787,16 @@ impl RawConfig {
             Some(w) => named("capture.command", w)?,
             None => CameraCommand::ImageStartCapture,
         };
+        let estimator_threads = match self.estimator.threads {
+            None => 1,
+            Some(n) if (1..=64).contains(&n) => n as usize,
+            Some(n) => {
+                return Err((
+                    "estimator.threads".into(),
+                    format!("must be 1 to 64, got {n}"),
+                ))
+            }
+        };
         let t = &self.trigger;
         let defaults = TriggerParams::default();
         let trigger = TriggerParams {
@@ -801,6 +815,7 @@ impl RawConfig {
         };
         Ok(Config {
             estimator: estimator.clone(),
+            estimator_threads,
             link,
             camera,
             depth,
@@ -934,6 +949,14 @@ mod tests {
                 "{e}"
             );
         }
+        for threads in ["0", "-1", "65"] {
+            let e = Config::from_text(&format!("[estimator]\nthreads = {threads}\n"), "x.toml")
+                .unwrap_err();
+            assert!(e.to_string().contains("estimator.threads"), "{e}");
+        }
+        let c = Config::from_text("[estimator]\nthreads = 4\n", "x.toml").unwrap();
+        assert_eq!(c.estimator_threads, 4);
+        assert_eq!(Config::from_text("", "x.toml").unwrap().estimator_threads, 1);
     }
 
     #[test]

@@ -24,3 +24,4 @@ pub mod simreport;
 pub mod source;
 pub mod synth;
 pub mod tradeoff;
+pub mod workers;

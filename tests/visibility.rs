@@ -7,11 +7,12 @@
 
 use alfd::core::inverse::{fill_grid, DepthRange, InvGrid};
 use alfd::core::visibility::{
-    line_intervals, visibility, visibility_of_image, End, Interval, LineScratch, TrackRays,
-    Visibility, VisibilityParams,
+    line_intervals, visibility, visibility_of_image, visibility_on, End, Interval, LineRun,
+    LineScratch, SweepWorkers, TrackRays, Visibility, VisibilityParams,
 };
 use alfd::core::{DepthData, DepthImage, Intrinsics, TrackAxis};
 use alfd::synth::{Aabb, BoxWorld, CameraPose};
+use alfd::workers::ThreadWorkers;
 use proptest::prelude::*;
 
 fn cases(divisor: u32) -> u32 {
@@ -675,8 +676,48 @@ fn check_outputs(v: &Visibility) -> Result<(), TestCaseError> {
     Ok(())
 }
 
+/// Workers that sweep every other run, each twice, and leave the rest: what
+/// the core must make whole whoever it lends the runs to.
+#[derive(Debug)]
+struct Careless(usize);
+
+impl SweepWorkers for Careless {
+    fn threads(&self) -> usize {
+        self.0
+    }
+
+    fn each(&self, runs: &mut [LineRun], job: &(dyn Fn(&mut LineRun) + Sync)) {
+        for r in runs.iter_mut().step_by(2) {
+            job(r);
+            job(r);
+        }
+    }
+}
+
 proptest! {
     #![proptest_config(config(20))]
+
+    /// Lines swept on several threads give the bits of one thread: counts,
+    /// shortest intervals and the occluded samples in line order (the unseen
+    /// spacing reads them). So do workers that skip runs or repeat them.
+    #[test]
+    fn any_thread_count_gives_the_same_bits(
+        c in random_case(),
+        p in params(),
+        threads in 2usize..7,
+        band in prop_oneof![Just(1.0), 0.0f64..1.0],
+    ) {
+        let p = VisibilityParams { views_band: band, ..p };
+        let mut g = InvGrid::default();
+        fill_grid(&c.img, c.axis, c.step, &DepthRange::default(), &mut g);
+        let geom = c.intr.track(c.axis);
+        let one = visibility(&g, &geom, c.pitch_rad, &p);
+        let many = visibility_on(&g, &geom, c.pitch_rad, &p, Some(&ThreadWorkers::new(threads)));
+        // `Visibility`'s `==` on its floats: none is NaN (the test below).
+        prop_assert_eq!(&one, &many);
+        let careless = visibility_on(&g, &geom, c.pitch_rad, &p, Some(&Careless(threads)));
+        prop_assert_eq!(&one, &careless);
+    }
 
     /// Finite, non-negative, in range and monotone on random maps, focal
     /// lengths, pitches (beyond ±90° too), decimations and track axes.
@@ -849,6 +890,11 @@ fn cost_per_frame() {
         let sweep_only = fastest(&mut || {
             std::hint::black_box(visibility(&g, &geom, 0.2, &only));
         });
+        let two = ThreadWorkers::new(2);
+        let sweep_two = fastest(&mut || {
+            std::hint::black_box(visibility_on(&g, &geom, 0.2, &p, Some(&two)));
+        });
+        println!("step {step}: visibility on two threads {sweep_two:.0} µs");
         let mut u = 0.0;
         let query = fastest(&mut || u = v.unseen_at(v.spacing_unseen_m.unwrap_or(5.0)));
         println!(

@@ -16,6 +16,7 @@ use crate::core::{DepthData, DepthImage, Intrinsics};
 use crate::link::unix_us_at;
 use crate::link::{mono_ns, LinkHandle};
 use crate::source::{DepthSource, SourceError, Stamped};
+use crate::workers::ThreadWorkers;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
@@ -197,6 +198,9 @@ pub async fn estimator_loop(
                     LocalFrame::new(home),
                 );
                 p.set_last_seq(ctx.last_seq);
+                if cfg.estimator_threads > 1 {
+                    p.set_sweep_workers(Arc::new(ThreadWorkers::new(cfg.estimator_threads)));
+                }
                 pipeline = Some(p);
             }
         }

@@ -251,6 +251,8 @@ profile = "{profile}"
 # to 5.3x too long on 20 % of the frames (docs/performance.md). The bench has
 # the CPU; on a drone it is `visibility_samples_max`'s trade.
 visibility_samples_max = {pixels}
+# The sweep's lines on every core of the bench: the same estimate, sooner.
+threads = {threads}
 
 [sampling]
 model = "{model}"
@@ -270,6 +272,7 @@ jpeg_quality = 90
         w = a.width,
         h = a.height,
         pixels = (a.width * a.height).max(100),
+        threads = std::thread::available_parallelism().map_or(1, |n| n.get().min(64)),
         fps = a.fps,
         hfov = scene.survey.hfov_deg,
         pitch = scene.survey.pitch_rad.to_degrees(),

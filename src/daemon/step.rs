@@ -12,8 +12,10 @@ use crate::core::geo::LocalFrame;
 use crate::core::pose::Pose;
 use crate::core::step::{self as decision, Decided};
 use crate::core::trigger::{Capture, TriggerParams};
+use crate::core::visibility::SweepWorkers;
 use crate::core::{DepthImage, Estimate, EstimatorParams, Intrinsics};
 use glam::EulerRot;
+use std::sync::Arc;
 
 /// What the pipeline needs besides the estimator and trigger settings.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -87,6 +89,11 @@ impl Pipeline {
 
     pub fn odometer_m(&self) -> f64 {
         self.decision.odometer_m()
+    }
+
+    /// Lends the estimator's visibility sweep threads (`[estimator] threads`).
+    pub fn set_sweep_workers(&mut self, workers: Arc<dyn SweepWorkers>) {
+        self.decision.set_sweep_workers(workers);
     }
 
     /// Continue numbering after the captures already in a flight's manifest.

@@ -14,7 +14,10 @@ use super::spacing::{
     coverage_m, disparity_gain_px, mmds_m, occlusion_degree, occlusion_density_per_m,
     occlusion_term_m, sspa_m,
 };
-use super::visibility::{visibility, Visibility, VisibilityParams, DEFAULT_PHASES};
+use super::visibility::{
+    visibility_on, SweepWorkers, Visibility, VisibilityParams, DEFAULT_PHASES,
+};
+use std::sync::Arc;
 use thiserror::Error;
 
 /// Why a frame gives no estimate. The caller falls back to a conservative spacing.
@@ -360,6 +363,8 @@ pub struct Estimator {
     /// `Decimation::Auto`'s level, the frame size it was calibrated on and the frames
     /// estimated at it since.
     auto: Option<AutoLevel>,
+    /// Threads lent to the visibility sweep (`None`: the calling thread).
+    sweep_workers: Option<Arc<dyn SweepWorkers>>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -380,7 +385,15 @@ impl Estimator {
             disparity: Vec::new(),
             vis_grid: InvGrid::default(),
             auto: None,
+            sweep_workers: None,
         }
+    }
+
+    /// Lends the visibility sweep threads: the same estimate, sooner where
+    /// cores are idle (its lines are merged in order, so the bits do not depend
+    /// on who swept them).
+    pub fn set_sweep_workers(&mut self, workers: Arc<dyn SweepWorkers>) {
+        self.sweep_workers = Some(workers);
     }
 
     pub fn params(&self) -> &EstimatorParams {
@@ -618,7 +631,7 @@ impl Estimator {
                 );
                 &self.vis_grid
             };
-            let v = visibility(
+            let v = visibility_on(
                 vgrid,
                 &geom,
                 pitch_rad,
@@ -629,6 +642,7 @@ impl Estimator {
                     views_band: 0.5,
                     ..VisibilityParams::default()
                 },
+                self.sweep_workers.as_deref(),
             );
             if v.samples > 0 {
                 est.terms.views = true;

@@ -8,6 +8,7 @@ use crate::attitude::{camera_to_body, flight_axis};
 use crate::closedloop::{ClosedLoop, ClosedLoopTargets, DepthSnapshot, Measure, View};
 use crate::pose::Pose;
 use crate::trigger::{Capture, Decision, Opportunity, Trigger, TriggerParams};
+use crate::visibility::SweepWorkers;
 use crate::{DepthImage, Estimate, Estimator, EstimatorParams, Intrinsics, TrackAxis};
 use glam::DMat3;
 
@@ -80,6 +81,11 @@ impl Pipeline {
             seq: 0,
             closed_loop: trigger.closed_loop.then(ClosedLoop::default),
         }
+    }
+
+    /// Lends the estimator's visibility sweep threads ([`Estimator::set_sweep_workers`]).
+    pub fn set_sweep_workers(&mut self, workers: std::sync::Arc<dyn SweepWorkers>) {
+        self.estimator.set_sweep_workers(workers);
     }
 
     /// Horizontal distance flown, frame to frame, since the start.

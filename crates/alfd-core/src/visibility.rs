@@ -618,13 +618,115 @@ pub fn visibility(
     pitch_rad: f64,
     params: &VisibilityParams,
 ) -> Visibility {
+    visibility_on(grid, geom, pitch_rad, params, None)
+}
+
+/// Threads the caller lends the sweep (the core names none: threads belong at
+/// the edges, STYLE.md). Lines are independent, so the sweep hands its runs of
+/// lines to [`SweepWorkers::each`] and merges them in line order: the result
+/// has the same bits whoever runs them.
+pub trait SweepWorkers: Send + Sync + std::fmt::Debug {
+    /// How many can run at once (the sweep makes a few runs per thread).
+    fn threads(&self) -> usize;
+    /// Calls `job` on every run, in any order, possibly at once. A run left
+    /// out is swept after it returns, on the calling thread; one swept again
+    /// is not changed.
+    fn each(&self, runs: &mut [LineRun], job: &(dyn Fn(&mut LineRun) + Sync));
+}
+
+/// One run of consecutive lines of the sweep and what it found there.
+#[derive(Debug, Clone)]
+pub struct LineRun {
+    lines: std::ops::Range<usize>,
+    done: bool,
+    scratch: LineScratch,
+    surface_lines: u64,
+    samples: u64,
+    occluded_samples: u64,
+    occluded_lines: u64,
+    min_all: f64,
+    min_occ: f64,
+    occluded: Vec<(f32, f32)>,
+}
+
+impl LineRun {
+    fn new(lines: std::ops::Range<usize>) -> LineRun {
+        LineRun {
+            lines,
+            done: false,
+            scratch: LineScratch::default(),
+            surface_lines: 0,
+            samples: 0,
+            occluded_samples: 0,
+            occluded_lines: 0,
+            min_all: f64::INFINITY,
+            min_occ: f64::INFINITY,
+            occluded: Vec::new(),
+        }
+    }
+
+    /// Whether it has been swept.
+    pub fn done(&self) -> bool {
+        self.done
+    }
+
+    /// Sweeps the run's lines once (again: nothing); `in_band`: the lines that
+    /// set the views bound.
+    fn sweep(
+        &mut self,
+        grid: &InvGrid,
+        rays: &TrackRays,
+        margin_rel: f64,
+        in_band: &std::ops::Range<usize>,
+    ) {
+        if self.done {
+            return;
+        }
+        self.done = true;
+        for a in self.lines.clone() {
+            let (mut surface, mut occluded) = (false, false);
+            let counts = in_band.contains(&a);
+            sweep_line(
+                grid.line(a),
+                rays,
+                margin_rel,
+                &mut self.scratch,
+                |_, iv| {
+                    surface = true;
+                    self.samples += 1;
+                    let l = iv.length_m();
+                    if counts {
+                        self.min_all = self.min_all.min(l);
+                    }
+                    if iv.occluded() {
+                        occluded = true;
+                        self.occluded_samples += 1;
+                        if counts {
+                            self.min_occ = self.min_occ.min(l);
+                        }
+                        self.occluded.push((iv.from_m as f32, iv.to_m as f32));
+                    }
+                },
+            );
+            self.surface_lines += surface as u64;
+            self.occluded_lines += occluded as u64;
+        }
+    }
+}
+
+/// [`visibility`], its lines swept by `workers` (`None`: on the calling thread).
+pub fn visibility_on(
+    grid: &InvGrid,
+    geom: &TrackGeometry,
+    pitch_rad: f64,
+    params: &VisibilityParams,
+    workers: Option<&dyn SweepWorkers>,
+) -> Visibility {
     let mut v = Visibility::empty(params);
     if grid.per_line == 0 || grid.lines == 0 || !pitch_rad.is_finite() {
         return v;
     }
     let rays = TrackRays::new(geom, &grid.along_idx, pitch_rad);
-    let mut scratch = LineScratch::default();
-    let (mut min_all, mut min_occ) = (f64::INFINITY, f64::INFINITY);
     let band = if params.views_band.is_finite() {
         params.views_band.clamp(0.0, 1.0)
     } else {
@@ -632,33 +734,39 @@ pub fn visibility(
     };
     let skip = ((grid.lines as f64 * (1.0 - band) * 0.5).floor() as usize).min(grid.lines / 2);
     let in_band = skip..grid.lines - skip;
-    for a in 0..grid.lines {
-        let (mut surface, mut occluded) = (false, false);
-        let counts = in_band.contains(&a);
-        sweep_line(
-            grid.line(a),
-            &rays,
-            params.occluder_margin_rel,
-            &mut scratch,
-            |_, iv| {
-                surface = true;
-                v.samples += 1;
-                let l = iv.length_m();
-                if counts {
-                    min_all = min_all.min(l);
-                }
-                if iv.occluded() {
-                    occluded = true;
-                    v.occluded_samples += 1;
-                    if counts {
-                        min_occ = min_occ.min(l);
-                    }
-                    v.occluded.push((iv.from_m as f32, iv.to_m as f32));
-                }
-            },
-        );
-        v.lines += surface as u64;
-        v.occluded_lines += occluded as u64;
+    let margin = params.occluder_margin_rel;
+    let threads = workers.map_or(1, |w| w.threads().max(1));
+    let mut runs: Vec<LineRun> = if threads == 1 {
+        vec![LineRun::new(0..grid.lines)]
+    } else {
+        // A few runs per thread, so that a thread whose lines hold the
+        // occluders does not keep the others waiting.
+        let n = (4 * threads).min(grid.lines);
+        (0..n)
+            .map(|i| LineRun::new(i * grid.lines / n..(i + 1) * grid.lines / n))
+            .collect()
+    };
+    if let Some(w) = workers.filter(|_| runs.len() > 1) {
+        w.each(&mut runs, &|r| r.sweep(grid, &rays, margin, &in_band));
+    }
+    // Here what no worker took (none lent, or one that could not start).
+    for r in &mut runs {
+        r.sweep(grid, &rays, margin, &in_band);
+    }
+    let (mut min_all, mut min_occ) = (f64::INFINITY, f64::INFINITY);
+    // In line order: the occluded samples in the order one thread gives them.
+    for r in &mut runs {
+        v.lines += r.surface_lines;
+        v.samples += r.samples;
+        v.occluded_samples += r.occluded_samples;
+        v.occluded_lines += r.occluded_lines;
+        min_all = min_all.min(r.min_all);
+        min_occ = min_occ.min(r.min_occ);
+        if v.occluded.is_empty() {
+            v.occluded = std::mem::take(&mut r.occluded);
+        } else {
+            v.occluded.extend_from_slice(&r.occluded);
+        }
     }
     let k = v.views_per_point_min as f64;
     v.interval_min_m = min_all.is_finite().then_some(min_all);
