@@ -956,7 +956,10 @@ mod tests {
         }
         let c = Config::from_text("[estimator]\nthreads = 4\n", "x.toml").unwrap();
         assert_eq!(c.estimator_threads, 4);
-        assert_eq!(Config::from_text("", "x.toml").unwrap().estimator_threads, 1);
+        assert_eq!(
+            Config::from_text("", "x.toml").unwrap().estimator_threads,
+            1
+        );
     }
 
     #[test]

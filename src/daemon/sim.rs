@@ -13,7 +13,9 @@ use crate::notify::Notifier;
 use crate::render::SensorModel;
 use crate::scene::Scene;
 use crate::simreport::{self, CaptureAt, DaemonSample, Summary, TrackSample, TruthPose};
-use crate::source::synthetic::{CameraPose, MonotonicClock, SyntheticColor, SyntheticDepth};
+use crate::source::synthetic::{
+    Ahead, CameraPose, ColourAhead, MonotonicClock, SyntheticColor, SyntheticDepth,
+};
 use crate::source::SourceError;
 use firmware_sim::{SimConfig, Transport, Truth};
 use std::path::{Path, PathBuf};
@@ -503,13 +505,26 @@ pub async fn run_sim_with(
         pose_source(scene.clone()),
         MonotonicClock,
     );
+    // On simulated time a capture's colour frame is rendered as soon as the
+    // capture is decided, on a thread of its own, while the flight goes on to
+    // its next frames: a streaming camera has the frame by the time the writer
+    // asks for it, and the runtime's thread no longer waits for the render.
+    let mut colour_ahead = None;
     let frames = (config.capture.mode == CaptureMode::Frame).then(|| {
         // The colour camera's own intrinsics, as the manifest records them.
         let ci = super::devices::intrinsics(&config.camera).unwrap_or(intr);
         let colour = SyntheticColor::new(scene.clone(), ci, 1, pose_source(scene.clone()));
-        // On simulated time nothing renders beside it: all cores.
         Frames::AtInstant(Box::new(if simulated {
-            colour.on_all_cores()
+            let ahead = Ahead::default();
+            colour_ahead = Some(ColourAhead::new(
+                scene.clone(),
+                ci,
+                1,
+                pose_source(scene.clone()),
+                ahead.clone(),
+            ));
+            // On simulated time nothing renders beside it: all cores.
+            colour.on_all_cores().with_ahead(ahead)
         } else {
             colour
         }))
@@ -555,16 +570,20 @@ pub async fn run_sim_with(
             stream.push(tracker.pose(s.mono_ns, &sim.truth_at_mono_ns(s.mono_ns)))
         }
     });
-    let on_sample: Option<SampleHook> = (progress.is_some() || feed.is_some()).then(|| {
-        Box::new(move |s: &FrameSample| {
-            if let Some(f) = progress.as_mut() {
-                f(s);
-            }
-            if let Some(f) = feed.as_mut() {
-                f(s);
-            }
-        }) as SampleHook
-    });
+    let on_sample: Option<SampleHook> =
+        (progress.is_some() || feed.is_some() || colour_ahead.is_some()).then(|| {
+            Box::new(move |s: &FrameSample| {
+                if let Some(f) = progress.as_mut() {
+                    f(s);
+                }
+                if let Some(f) = feed.as_mut() {
+                    f(s);
+                }
+                if let Some(c) = colour_ahead.as_mut().filter(|_| s.captured) {
+                    c.prepare(s.mono_ns);
+                }
+            }) as SampleHook
+        });
 
     let done = {
         let sim = sim.clone();

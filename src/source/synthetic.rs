@@ -177,6 +177,8 @@ pub struct SyntheticColor<P> {
     options: RenderOptions,
     pose: P,
     seq: u64,
+    /// Frames rendered ahead by a [`ColourAhead`], collected here.
+    ahead: Option<Ahead>,
     /// Its own single thread: a colour render (several depth frames' worth)
     /// must not take the cores the depth camera's frames are rendered on,
     /// or the depth camera would miss frames a real one delivers.
@@ -193,6 +195,7 @@ impl<P: PoseAt> SyntheticColor<P> {
             },
             pose,
             seq: 0,
+            ahead: None,
             pool: rayon::ThreadPoolBuilder::new()
                 .num_threads(1)
                 .thread_name(|_| "alfd-synth-color".into())
@@ -209,6 +212,120 @@ impl<P> SyntheticColor<P> {
     pub fn on_all_cores(mut self) -> Self {
         self.pool = None;
         self
+    }
+
+    /// Collects the frames `ahead` holds before rendering one itself.
+    pub fn with_ahead(mut self, ahead: Ahead) -> Self {
+        self.ahead = Some(ahead);
+        self
+    }
+}
+
+/// Colour frames rendered before the writer asks for them: what a streaming
+/// camera's ring already holds when a capture's image is made. Filled by a
+/// [`ColourAhead`] when a capture is decided, emptied by [`SyntheticColor`]
+/// when the writer asks for that instant. On simulated time the render then
+/// overlaps the flight's next frames instead of holding the runtime's thread;
+/// the frame is the same (the renderer is deterministic), and the writer's
+/// simulated time is unchanged (a render takes none).
+#[derive(Clone, Default)]
+pub struct Ahead(Arc<std::sync::Mutex<AheadQueue>>);
+
+type AheadQueue = std::collections::VecDeque<(u64, std::sync::mpsc::Receiver<ColorImage>)>;
+
+/// Renders ahead at most; beyond it a frame is rendered when asked (a writer
+/// far behind its captures gains nothing from more in flight).
+pub const AHEAD_MAX: usize = 8;
+
+impl Ahead {
+    fn queue(&self) -> std::sync::MutexGuard<'_, AheadQueue> {
+        self.0.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// The frame of `mono_ns` if it was rendered ahead (waiting for it to
+    /// finish). Earlier instants are dropped: the writer asks in order, so
+    /// they were captures whose image it did not make.
+    fn take(&self, mono_ns: u64) -> Option<ColorImage> {
+        let rx = {
+            let mut q = self.queue();
+            while q.front().is_some_and(|(t, _)| *t < mono_ns) {
+                q.pop_front();
+            }
+            match q.front() {
+                Some((t, _)) if *t == mono_ns => q.pop_front().map(|(_, rx)| rx),
+                _ => None,
+            }
+        };
+        // A render that panicked sent nothing: the caller renders it again.
+        rx?.recv().ok()
+    }
+}
+
+/// Starts the colour renders of captures as they are decided, on a thread of
+/// its own (the depth frames keep rayon's shared pool), into an [`Ahead`].
+pub struct ColourAhead<P> {
+    scene: Arc<Scene>,
+    intrinsics: Intrinsics,
+    options: RenderOptions,
+    pose: P,
+    ahead: Ahead,
+    pool: Option<Arc<rayon::ThreadPool>>,
+}
+
+impl<P: PoseAt> ColourAhead<P> {
+    /// Renders as [`SyntheticColor::new`] with the same arguments would.
+    pub fn new(
+        scene: Arc<Scene>,
+        intrinsics: Intrinsics,
+        supersample: usize,
+        pose: P,
+        ahead: Ahead,
+    ) -> Self {
+        ColourAhead {
+            scene,
+            intrinsics,
+            options: RenderOptions {
+                supersample: supersample.max(1),
+            },
+            pose,
+            ahead,
+            pool: rayon::ThreadPoolBuilder::new()
+                .num_threads(1)
+                .thread_name(|_| "alfd-color-ahead".into())
+                .build()
+                .ok()
+                .map(Arc::new),
+        }
+    }
+
+    /// Starts rendering the frame of `mono_ns` (nothing when [`AHEAD_MAX`]
+    /// are in flight, no pose is known or no thread could be had: the frame
+    /// is then rendered when asked).
+    pub fn prepare(&mut self, mono_ns: u64) {
+        let Some(pool) = &self.pool else { return };
+        if self.ahead.queue().len() >= AHEAD_MAX {
+            return;
+        }
+        let Some(pose) = self.pose.pose_at(mono_ns) else {
+            return;
+        };
+        let camera = pose.camera(self.intrinsics);
+        let (scene, options) = (self.scene.clone(), self.options);
+        let (tx, rx) = std::sync::mpsc::sync_channel(1);
+        pool.spawn(move || {
+            let frame = render(&scene, &camera, &options);
+            // The writer may have stopped waiting (the run ended): nothing to do.
+            let _ = tx.send(colour_image(&frame));
+        });
+        self.ahead.queue().push_back((mono_ns, rx));
+    }
+}
+
+fn colour_image(frame: &Frame) -> ColorImage {
+    ColorImage {
+        width: frame.width,
+        height: frame.height,
+        rgb: frame.rgb8(),
     }
 }
 
@@ -237,21 +354,22 @@ pub(crate) fn idle_this_thread() {
 
 impl<P: PoseAt> FrameAt for SyntheticColor<P> {
     fn raw_at(&mut self, mono_ns: u64) -> Option<Stamped<RawColor>> {
-        let pose = self.pose.pose_at(mono_ns)?;
-        let camera = pose.camera(self.intrinsics);
-        let frame = match &self.pool {
-            Some(pool) => pool.install(|| render(&self.scene, &camera, &self.options)),
-            None => render(&self.scene, &camera, &self.options),
+        let image = match self.ahead.as_ref().and_then(|a| a.take(mono_ns)) {
+            Some(image) => image,
+            None => {
+                let pose = self.pose.pose_at(mono_ns)?;
+                let camera = pose.camera(self.intrinsics);
+                colour_image(&match &self.pool {
+                    Some(pool) => pool.install(|| render(&self.scene, &camera, &self.options)),
+                    None => render(&self.scene, &camera, &self.options),
+                })
+            }
         };
         self.seq += 1;
         Some(Stamped {
             mono_ns,
             seq: self.seq,
-            data: RawColor::Rgb(ColorImage {
-                width: frame.width,
-                height: frame.height,
-                rgb: frame.rgb8(),
-            }),
+            data: RawColor::Rgb(image),
         })
     }
 }
@@ -418,5 +536,52 @@ mod tests {
         let g = src.next_depth().unwrap().unwrap();
         // Due at 0.1 s but rendered at 0.35 s: 0.2 and 0.3 s are skipped.
         assert_eq!((g.mono_ns, g.seq), (400_000_000, 5));
+    }
+    /// A frame rendered ahead is the frame rendered when asked, bit for bit,
+    /// and is collected once; an instant asked past is dropped, and one not
+    /// rendered ahead is rendered then.
+    #[test]
+    fn a_frame_rendered_ahead_is_the_frame_rendered_when_asked() {
+        let intr = Intrinsics::from_hfov_deg(40, 30, 69.0, None).unwrap();
+        // A pose that moves with time, so each instant has its own frame.
+        let pose = |t: u64| Some(nadir([t as f64 * 1e-9, 0.0, 40.0]));
+        let rgb = |f: Option<Stamped<RawColor>>| match f.map(|f| f.data) {
+            Some(RawColor::Rgb(c)) => c.rgb,
+            _ => panic!("no colour frame"),
+        };
+        let mut direct = SyntheticColor::new(roof(), intr, 1, pose).on_all_cores();
+        let ahead = Ahead::default();
+        let mut start = ColourAhead::new(roof(), intr, 1, pose, ahead.clone());
+        let mut cam = SyntheticColor::new(roof(), intr, 1, pose)
+            .on_all_cores()
+            .with_ahead(ahead.clone());
+        for t in [1_000_000_000, 2_000_000_000, 3_000_000_000] {
+            start.prepare(t);
+        }
+        assert_eq!(ahead.queue().len(), 3);
+        // The writer skipped the first capture's image.
+        let second = rgb(cam.raw_at(2_000_000_000));
+        assert_eq!(second, rgb(direct.raw_at(2_000_000_000)));
+        assert_eq!(
+            ahead.queue().len(),
+            1,
+            "the first dropped, the second taken"
+        );
+        assert_ne!(second, rgb(direct.raw_at(3_000_000_000)));
+        assert_eq!(
+            rgb(cam.raw_at(3_000_000_000)),
+            rgb(direct.raw_at(3_000_000_000))
+        );
+        assert!(ahead.queue().is_empty());
+        // Not rendered ahead: rendered when asked.
+        assert_eq!(
+            rgb(cam.raw_at(4_000_000_000)),
+            rgb(direct.raw_at(4_000_000_000))
+        );
+        // No more than AHEAD_MAX in flight.
+        for k in 0..2 * AHEAD_MAX as u64 {
+            start.prepare(5_000_000_000 + k);
+        }
+        assert_eq!(ahead.queue().len(), AHEAD_MAX);
     }
 }
