@@ -14,7 +14,7 @@ use crate::render::SensorModel;
 use crate::scene::Scene;
 use crate::simreport::{self, CaptureAt, DaemonSample, Summary, TrackSample, TruthPose};
 use crate::source::synthetic::{
-    Ahead, CameraPose, ColourAhead, MonotonicClock, SyntheticColor, SyntheticDepth,
+    Ahead, CameraPose, ColourAhead, DepthTap, MonotonicClock, SyntheticColor, SyntheticDepth,
 };
 use crate::source::SourceError;
 use firmware_sim::{SimConfig, Transport, Truth};
@@ -497,6 +497,8 @@ pub async fn run_sim_with(
         max_range_m: config.depth.max_range_m,
         seed: args.seed,
     };
+    // Each depth frame's exact render, for the truth track below.
+    let tap = DepthTap::default();
     let depth = SyntheticDepth::new(
         scene.clone(),
         intr,
@@ -504,7 +506,8 @@ pub async fn run_sim_with(
         config.depth.fps,
         pose_source(scene.clone()),
         MonotonicClock,
-    );
+    )
+    .with_tap(tap.clone());
     // On simulated time a capture's colour frame is rendered as soon as the
     // capture is decided, on a thread of its own, while the flight goes on to
     // its next frames: a streaming camera has the frame by the time the writer
@@ -566,8 +569,13 @@ pub async fn run_sim_with(
     let mut feed = truth_stream.clone().map(|stream| {
         let sim = sim.clone();
         let mut tracker = TruthTracker::new(scene.clone(), intr, mount);
+        let tap = tap.clone();
         move |s: &FrameSample| {
-            stream.push(tracker.pose(s.mono_ns, &sim.truth_at_mono_ns(s.mono_ns)))
+            let pose = tracker.pose(s.mono_ns, &sim.truth_at_mono_ns(s.mono_ns));
+            // The depth camera's own render of this frame, when it is this
+            // pose's: the truth need not render it again.
+            let depth = tap.take_if(s.mono_ns, &pose.camera);
+            stream.push(pose, depth)
         }
     });
     let on_sample: Option<SampleHook> =

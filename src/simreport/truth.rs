@@ -14,6 +14,7 @@ use crate::scene::Scene;
 use crate::source::synthetic::idle_this_thread;
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 
 /// Poses rendered at once: keeps the depth maps in memory bounded.
@@ -29,11 +30,12 @@ pub fn truth_estimates(
 ) -> Vec<TrackSample> {
     let mut out = Vec::with_capacity(poses.len());
     let mut estimator = Estimator::new(params.clone());
+    let mut rendered = (0..poses.len()).map(|_| None).collect::<Vec<_>>();
     estimate_range(
         scene,
         intrinsics,
         params,
-        poses,
+        (poses, &mut rendered),
         0..poses.len(),
         &mut estimator,
         &mut out,
@@ -43,27 +45,34 @@ pub fn truth_estimates(
 
 /// Appends the samples of `poses[range]` to `out`, each pose's flight axis from
 /// its neighbours in `poses` (clamped at the ends: the caller leaves the last
-/// pose out until its successor is known, or the track has ended). A fixed
-/// decimation keeps no state from frame to frame, so its poses are estimated
-/// in parallel, one estimator per worker, with the same results; otherwise in
-/// pose order through `sequential`, the depth rendered in parallel `CHUNK`s.
+/// pose out until its successor is known, or the track has ended). A pose's
+/// depth is taken from `rendered` where the flight left it (the same render
+/// at the same camera), else rendered here. A fixed decimation keeps no state
+/// from frame to frame, so its poses are estimated in parallel, one estimator
+/// per worker, with the same results; otherwise in pose order through
+/// `sequential`, the depth rendered in parallel `CHUNK`s.
 fn estimate_range(
     scene: &Scene,
     intrinsics: Intrinsics,
     params: &EstimatorParams,
-    poses: &[TruthPose],
+    (poses, rendered): (&[TruthPose], &mut [Option<Vec<f32>>]),
     range: std::ops::Range<usize>,
     sequential: &mut Estimator,
     out: &mut Vec<TrackSample>,
 ) {
+    let depth_at = |p: &TruthPose, slot: &mut Option<Vec<f32>>| {
+        slot.take()
+            .unwrap_or_else(|| render_depth(scene, &camera(p, intrinsics)))
+    };
     if matches!(params.decimation, Decimation::Fixed(_)) {
-        let samples: Vec<TrackSample> = range
-            .into_par_iter()
+        let samples: Vec<TrackSample> = rendered[range.clone()]
+            .par_iter_mut()
+            .zip(range.into_par_iter())
             .map_init(
                 || Estimator::new(params.clone()),
-                |estimator, k| {
+                |estimator, (slot, k)| {
                     let p = &poses[k];
-                    let depth = render_depth(scene, &camera(p, intrinsics));
+                    let depth = depth_at(p, slot);
                     let (axis, pitch_rad) = axis_pitch(poses, k, params.track_axis);
                     estimator.set_track_axis(axis);
                     sample(estimator, p, intrinsics, depth, pitch_rad)
@@ -77,7 +86,8 @@ fn estimate_range(
         let chunk = start..(start + CHUNK).min(range.end);
         let depths: Vec<Vec<f32>> = poses[chunk.clone()]
             .par_iter()
-            .map(|p| render_depth(scene, &camera(p, intrinsics)))
+            .zip(rendered[chunk.clone()].par_iter_mut())
+            .map(|(p, slot)| depth_at(p, slot))
             .collect();
         for (k, depth) in chunk.zip(depths) {
             let (axis, pitch_rad) = axis_pitch(poses, k, params.track_axis);
@@ -120,9 +130,15 @@ fn axis_pitch(poses: &[TruthPose], k: usize, track_axis: TrackAxis) -> (TrackAxi
 /// waits for the worker, which on simulated time freezes the clock with it, so
 /// the flight is the same either way.
 pub struct TruthStream {
-    tx: Option<std::sync::mpsc::SyncSender<TruthPose>>,
+    tx: Option<std::sync::mpsc::SyncSender<(TruthPose, Option<Vec<f32>>)>>,
+    /// Depth maps given with poses and not yet taken by the worker.
+    given: Arc<AtomicUsize>,
     worker: Option<std::thread::JoinHandle<TruthStreamResult>>,
 }
+
+/// Depth maps ([`TruthStream::push`]) queued at most (about 1.2 MB each at
+/// 640 × 480); beyond, poses go without theirs and the worker renders them.
+const GIVEN_MAX: usize = 32;
 
 /// The poses a [`TruthStream`] was given and its samples at them.
 type TruthStreamResult = (Vec<TruthPose>, Vec<TrackSample>);
@@ -139,7 +155,9 @@ impl TruthStream {
         intrinsics: Intrinsics,
         params: EstimatorParams,
     ) -> Option<TruthStream> {
-        let (tx, rx) = std::sync::mpsc::sync_channel::<TruthPose>(STREAM_QUEUE);
+        let (tx, rx) = std::sync::mpsc::sync_channel::<(TruthPose, Option<Vec<f32>>)>(STREAM_QUEUE);
+        let given = Arc::new(AtomicUsize::new(0));
+        let taken = given.clone();
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(1)
             .thread_name(|_| "alfd-truth-render".into())
@@ -151,46 +169,69 @@ impl TruthStream {
             .spawn(move || {
                 idle_this_thread();
                 let mut poses: Vec<TruthPose> = Vec::new();
+                let mut rendered: Vec<Option<Vec<f32>>> = Vec::new();
                 let mut out: Vec<TrackSample> = Vec::new();
                 let mut estimator = Estimator::new(params.clone());
                 // The poses from the first not yet estimated up to `end`.
                 let estimate_to = |end: usize,
-                                   poses: &[TruthPose],
+                                   track: (&[TruthPose], &mut [Option<Vec<f32>>]),
                                    estimator: &mut Estimator,
                                    out: &mut Vec<TrackSample>| {
                     let range = out.len()..end;
-                    estimate_range(&scene, intrinsics, &params, poses, range, estimator, out)
+                    estimate_range(&scene, intrinsics, &params, track, range, estimator, out)
                 };
                 // While the flight runs: each pose once its successor is known
                 // (its flight axis needs both neighbours), on the worker's own
                 // thread so the flight's renders keep rayon's pool.
-                while let Ok(p) = rx.recv() {
-                    poses.push(p);
-                    poses.extend(rx.try_iter());
+                while let Ok(first) = rx.recv() {
+                    for (p, depth) in std::iter::once(first).chain(rx.try_iter()) {
+                        if depth.is_some() {
+                            taken.fetch_sub(1, Ordering::AcqRel);
+                        }
+                        poses.push(p);
+                        rendered.push(depth);
+                    }
                     let ready = poses.len() - 1;
                     if ready > out.len() {
-                        pool.install(|| estimate_to(ready, &poses, &mut estimator, &mut out));
+                        pool.install(|| {
+                            estimate_to(ready, (&poses, &mut rendered), &mut estimator, &mut out)
+                        });
                     }
                 }
                 // The flight is over: the rest on every core.
-                estimate_to(poses.len(), &poses, &mut estimator, &mut out);
+                estimate_to(
+                    poses.len(),
+                    (&poses, &mut rendered),
+                    &mut estimator,
+                    &mut out,
+                );
                 (poses, out)
             })
             .ok()?;
         Some(TruthStream {
             tx: Some(tx),
+            given,
             worker: Some(worker),
         })
     }
 
-    /// Queues the next pose (in pose order); waits while the queue is full.
-    /// A worker that has stopped (it panicked) takes nothing more, and
-    /// [`TruthStream::finish`] says so.
-    pub fn push(&self, pose: TruthPose) {
-        if let Some(tx) = &self.tx {
-            // An error means the worker is gone: `finish` reports it.
-            tx.send(pose).ok();
-        }
+    /// Queues the next pose (in pose order), with its exact depth if the
+    /// caller has it (rendered at the pose's camera and intrinsics: the
+    /// flight's own frame), which the worker then need not render; waits
+    /// while the queue is full. A worker that has stopped (it panicked) takes
+    /// nothing more, and [`TruthStream::finish`] says so.
+    pub fn push(&self, pose: TruthPose, depth_m: Option<Vec<f32>>) {
+        let Some(tx) = &self.tx else { return };
+        // Past `GIVEN_MAX` the depth is dropped: the worker renders it.
+        let depth_m = depth_m.filter(|_| {
+            self.given
+                .fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| {
+                    (n < GIVEN_MAX).then_some(n + 1)
+                })
+                .is_ok()
+        });
+        // An error means the worker is gone: `finish` reports it.
+        tx.send((pose, depth_m)).ok();
     }
 
     /// Estimates what is left and returns the poses given and their samples;
@@ -348,12 +389,23 @@ texture = { colour = [0.7, 0.6, 0.6], contrast = 0.3, seed = 2 }
             assert_eq!(batch.len(), poses.len());
             let stream = TruthStream::spawn(scene.clone(), intr, params.clone())
                 .expect("a thread for the stream");
-            for p in &poses {
-                stream.push(*p);
+            // Every other pose with its depth as the flight rendered it.
+            for (k, p) in poses.iter().enumerate() {
+                let depth = (k % 2 == 0).then(|| render_depth(&scene, &camera(p, intr)));
+                stream.push(*p, depth);
             }
             let (given, streamed) = stream.finish().expect("the worker finishes");
             assert_eq!(given, poses);
             assert_eq!(streamed, batch, "{:?}", params.decimation);
+            // A depth given is the one estimated: open ground 1 km below
+            // instead of the building gives another sample.
+            let stream = TruthStream::spawn(scene.clone(), intr, params.clone()).unwrap();
+            for (k, p) in poses.iter().enumerate() {
+                stream.push(*p, (k == 2).then(|| vec![1000.0; 64 * 48]));
+            }
+            let (_, other) = stream.finish().unwrap();
+            assert_ne!(other[2], batch[2]);
+            assert_eq!(other[..2], batch[..2]);
         }
         // A stream given nothing gives nothing.
         let stream = TruthStream::spawn(scene, intr, EstimatorParams::default()).unwrap();

@@ -99,6 +99,40 @@ pub struct SyntheticDepth<P, C> {
     seq: u64,
     pose: P,
     clock: C,
+    tap: Option<DepthTap>,
+}
+
+/// The exact depth (metres, before the sensor) of the last frame a
+/// [`SyntheticDepth`] rendered, its instant and its camera: `alfd sim`'s
+/// truth track, which renders the same frame at the same true pose, takes it
+/// instead of rendering it again.
+#[derive(Clone, Default)]
+pub struct DepthTap(Arc<std::sync::Mutex<Option<TappedDepth>>>);
+
+/// A frame in a [`DepthTap`].
+pub struct TappedDepth {
+    pub mono_ns: u64,
+    pub camera: Camera,
+    pub depth_m: Vec<f32>,
+}
+
+impl DepthTap {
+    /// The last frame, if it is the one of `mono_ns` seen by `camera` (bit
+    /// for bit: then its depth is the render's at that camera).
+    pub fn take_if(&self, mono_ns: u64, camera: &Camera) -> Option<Vec<f32>> {
+        let mut slot = self.0.lock().unwrap_or_else(|p| p.into_inner());
+        match slot.take() {
+            Some(t) if t.mono_ns == mono_ns && t.camera == *camera => Some(t.depth_m),
+            other => {
+                *slot = other;
+                None
+            }
+        }
+    }
+
+    fn put(&self, frame: TappedDepth) {
+        *self.0.lock().unwrap_or_else(|p| p.into_inner()) = Some(frame);
+    }
 }
 
 impl<P: PoseAt, C: Clock> SyntheticDepth<P, C> {
@@ -119,7 +153,14 @@ impl<P: PoseAt, C: Clock> SyntheticDepth<P, C> {
             seq: 0,
             pose,
             clock,
+            tap: None,
         }
+    }
+
+    /// Leaves each frame's exact depth in `tap`.
+    pub fn with_tap(mut self, tap: DepthTap) -> Self {
+        self.tap = Some(tap);
+        self
     }
 }
 
@@ -161,10 +202,18 @@ impl<P: PoseAt, C: Clock> DepthSource for SyntheticDepth<P, C> {
             seed: self.sensor.seed ^ seq.wrapping_mul(0x9E37_79B9_7F4A_7C15),
             ..self.sensor
         };
+        let data = frame.z16(&sensor);
+        if let Some(tap) = &self.tap {
+            tap.put(TappedDepth {
+                mono_ns: t,
+                camera,
+                depth_m: frame.depth_m,
+            });
+        }
         Ok(Some(Stamped {
             mono_ns: t,
             seq,
-            data: frame.z16(&sensor),
+            data,
         }))
     }
 }
@@ -261,7 +310,7 @@ impl Ahead {
     }
 }
 
-/// Starts the colour renders of captures as they are decided, on a thread of
+/// Starts the colour renders of captures as they are decided, on threads of
 /// its own (the depth frames keep rayon's shared pool), into an [`Ahead`].
 pub struct ColourAhead<P> {
     scene: Arc<Scene>,
@@ -289,8 +338,10 @@ impl<P: PoseAt> ColourAhead<P> {
             },
             pose,
             ahead,
+            // As many threads as cores: when the writer waits for a frame
+            // nothing else runs on the flight's side, so it gets them all.
             pool: rayon::ThreadPoolBuilder::new()
-                .num_threads(1)
+                .num_threads(std::thread::available_parallelism().map_or(1, |n| n.get()))
                 .thread_name(|_| "alfd-color-ahead".into())
                 .build()
                 .ok()
@@ -583,5 +634,31 @@ mod tests {
             start.prepare(5_000_000_000 + k);
         }
         assert_eq!(ahead.queue().len(), AHEAD_MAX);
+    }
+
+    /// The tap holds the last frame's exact depth (before the sensor's noise
+    /// and range), given once and only for its own instant and camera.
+    #[test]
+    fn the_tap_gives_the_last_frames_exact_depth_for_its_own_camera() {
+        let intr = Intrinsics::from_hfov_deg(8, 6, 69.0, None).unwrap();
+        let pose = |_| Some(nadir([0.0, 0.0, 40.0]));
+        let tap = DepthTap::default();
+        let sensor = SensorModel {
+            noise_per_m: 0.01,
+            dropout: 0.2,
+            ..SensorModel::default()
+        };
+        let mut src = SyntheticDepth::new(roof(), intr, sensor, 10.0, pose, Stepped::default())
+            .with_tap(tap.clone());
+        let f = src.next_depth().unwrap().unwrap();
+        let camera = nadir([0.0, 0.0, 40.0]).camera(intr);
+        let other = nadir([0.5, 0.0, 40.0]).camera(intr);
+        assert_eq!(tap.take_if(f.mono_ns + 1, &camera), None);
+        assert_eq!(tap.take_if(f.mono_ns, &other), None);
+        assert_eq!(
+            tap.take_if(f.mono_ns, &camera),
+            Some(render_depth(&roof(), &camera))
+        );
+        assert_eq!(tap.take_if(f.mono_ns, &camera), None, "given once");
     }
 }
