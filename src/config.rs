@@ -608,6 +608,22 @@ fn named<T: clap::ValueEnum>(field: &str, value: &str) -> Result<T, (String, Str
     })
 }
 
+/// `v` (`default` when absent) if within `range`, else an error naming `field`.
+fn whole_in(
+    field: &str,
+    v: Option<i64>,
+    default: i64,
+    range: std::ops::RangeInclusive<i64>,
+) -> Result<i64, (String, String)> {
+    match v.unwrap_or(default) {
+        n if range.contains(&n) => Ok(n),
+        n => Err((
+            field.to_string(),
+            format!("must be {} to {}, got {n}", range.start(), range.end()),
+        )),
+    }
+}
+
 fn positive(field: &str, v: f64, max: f64) -> Result<f64, (String, String)> {
     if v.is_finite() && v > 0.0 && v <= max {
         Ok(v)
@@ -758,16 +774,7 @@ impl RawConfig {
                 "\"frame\" saves the camera's frames, but camera.source is \"none\": use \"camera_command\" or \"autopilot_distance\"".into(),
             ));
         }
-        let quality = match c.jpeg_quality {
-            None => 90,
-            Some(q) if (1..=100).contains(&q) => q as u8,
-            Some(q) => {
-                return Err((
-                    "capture.jpeg_quality".into(),
-                    format!("must be 1 to 100, got {q}"),
-                ))
-            }
-        };
+        let quality = whole_in("capture.jpeg_quality", c.jpeg_quality, 90, 1..=100)? as u8;
         let image_format = match c
             .image_format
             .as_deref()
@@ -787,16 +794,8 @@ impl RawConfig {
             Some(w) => named("capture.command", w)?,
             None => CameraCommand::ImageStartCapture,
         };
-        let estimator_threads = match self.estimator.threads {
-            None => 1,
-            Some(n) if (1..=64).contains(&n) => n as usize,
-            Some(n) => {
-                return Err((
-                    "estimator.threads".into(),
-                    format!("must be 1 to 64, got {n}"),
-                ))
-            }
-        };
+        let estimator_threads =
+            whole_in("estimator.threads", self.estimator.threads, 1, 1..=64)? as usize;
         let t = &self.trigger;
         let defaults = TriggerParams::default();
         let trigger = TriggerParams {
