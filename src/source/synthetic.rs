@@ -110,10 +110,10 @@ pub struct SyntheticDepth<P, C> {
 pub struct DepthTap(Arc<std::sync::Mutex<Option<TappedDepth>>>);
 
 /// A frame in a [`DepthTap`].
-pub struct TappedDepth {
-    pub mono_ns: u64,
-    pub camera: Camera,
-    pub depth_m: Vec<f32>,
+struct TappedDepth {
+    mono_ns: u64,
+    camera: Camera,
+    depth_m: Vec<f32>,
 }
 
 impl DepthTap {
@@ -318,7 +318,7 @@ pub struct ColourAhead<P> {
     options: RenderOptions,
     pose: P,
     ahead: Ahead,
-    pool: Option<Arc<rayon::ThreadPool>>,
+    pool: Option<rayon::ThreadPool>,
 }
 
 impl<P: PoseAt> ColourAhead<P> {
@@ -344,8 +344,7 @@ impl<P: PoseAt> ColourAhead<P> {
                 .num_threads(std::thread::available_parallelism().map_or(1, |n| n.get()))
                 .thread_name(|_| "alfd-color-ahead".into())
                 .build()
-                .ok()
-                .map(Arc::new),
+                .ok(),
         }
     }
 
@@ -588,6 +587,7 @@ mod tests {
         // Due at 0.1 s but rendered at 0.35 s: 0.2 and 0.3 s are skipped.
         assert_eq!((g.mono_ns, g.seq), (400_000_000, 5));
     }
+
     /// A frame rendered ahead is the frame rendered when asked, bit for bit,
     /// and is collected once; an instant asked past is dropped, and one not
     /// rendered ahead is rendered then.

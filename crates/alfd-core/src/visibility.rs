@@ -665,11 +665,6 @@ impl LineRun {
         }
     }
 
-    /// Whether it has been swept.
-    pub fn done(&self) -> bool {
-        self.done
-    }
-
     /// Sweeps the run's lines once (again: nothing); `in_band`: the lines that
     /// set the views bound.
     fn sweep(
