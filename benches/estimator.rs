@@ -3,7 +3,7 @@
 //! sum of its u16 values). `scripts/bench-ratios.py` prints every figure as a
 //! ratio to that baseline, since this machine is shared and noisy.
 
-use alfd::core::estimate::{disparity_span_per_m, visibility_step, Estimator};
+use alfd::core::estimate::{disparity_span_per_m, parallax_in_frame, visibility_step, Estimator};
 use alfd::core::inverse::{fill_grid, fill_grid_counted, percentile_ranks, InvGrid, Selector};
 use alfd::core::occlusion::{scan, BoundaryParams};
 use alfd::core::plane;
@@ -172,7 +172,6 @@ fn bench(c: &mut Criterion) {
             b.iter(|| plane::fit(black_box(&grid), &geom, pitch, 3, 2.5, &mut sel))
         });
         // The quality model's stages (the default model).
-        let surface = (grid.valid - grid.sky) as u64;
         let mut scratch = Vec::new();
         g.bench_function("stage_disparity_span", |b| {
             b.iter(|| {
@@ -180,11 +179,34 @@ fn bench(c: &mut Criterion) {
                     black_box(&grid),
                     &geom,
                     pitch,
-                    percentile_ranks(surface, 0.005, 0.995),
+                    (0.005, 0.995),
                     0,
+                    None,
                     &mut scratch,
                     &mut sel,
                 )
+            })
+        });
+        // The term as the estimator runs it: the span over every sample, then
+        // over the samples both captures keep in frame until the spacing settles.
+        g.bench_function("stage_parallax_in_frame", |b| {
+            b.iter(|| {
+                let span = |within, scratch: &mut Vec<f32>, sel: &mut Selector| {
+                    disparity_span_per_m(
+                        black_box(&grid),
+                        &geom,
+                        pitch,
+                        (0.005, 0.995),
+                        0,
+                        within,
+                        scratch,
+                        sel,
+                    )
+                };
+                let all = span(None, &mut scratch, &mut sel)?;
+                Some(parallax_in_frame(all, 2.0, |b| {
+                    span(Some(b), &mut scratch, &mut sel)
+                }))
             })
         });
         let vstep = visibility_step(grid.samples(), 1, params.visibility_samples_max);

@@ -359,9 +359,10 @@ proptest! {
     /// Ground beyond the range (issue 13's blind spot): no-return pixels below the horizon
     /// are counted exactly, never make a number non-finite, and put the depth range's far
     /// end at infinity only when they outnumber the low percentile's tail. At nadir, the
-    /// spacing they give is never longer than if those pixels had returned a depth beyond
-    /// every other one (650 m): treating them as far can only shorten it, never leave the
-    /// span understated.
+    /// spacing over every pixel they give is never longer than if those pixels had returned
+    /// a depth beyond every other one (650 m): treating them as far can only shorten it,
+    /// never leave the span understated. The spacing flown, over the pixels both captures
+    /// keep in frame, is never shorter than the one over every pixel.
     #[test]
     fn no_return_below_the_horizon_never_lengthens_the_spacing(
         (w, h, z, intr, pitch) in no_return_case()
@@ -389,12 +390,23 @@ proptest! {
         }
         if pitch == 0.0 && e.is_ok() {
             let returned: Vec<u16> = z.iter().map(|&v| if v == 0 { 65_000 } else { v }).collect();
-            let r = Estimator::new(p).estimate_at(&frame(returned), &intr, pitch, 1).unwrap();
-            let (far, near) = (
-                e.spacing.parallax_m.unwrap_or(f64::INFINITY),
-                r.spacing.parallax_m.unwrap_or(f64::INFINITY),
-            );
+            let r = Estimator::new(p.clone()).estimate_at(&frame(returned), &intr, pitch, 1).unwrap();
+            // The spacing over every pixel: the parallax target over the depth
+            // range, before any pixel a step would take out of frame is left
+            // out. The spacing flown is that set's (the truth's pixel set),
+            // where a no-return pixel (infinitely far, it never moves) and a
+            // 650 m one (it leaves the frame on a long enough step) are no
+            // longer the same pixel, so the comparison is made here.
+            let px = p.quality.parallax_px.unwrap();
+            let all = |e: &alfd::core::Estimate| {
+                e.inv_depth.map_or(f64::INFINITY, |i| px / (intr.focal_px() * (i.max_per_m - i.min_per_m)))
+            };
+            let (far, near) = (all(&e), all(&r));
             prop_assert!(far <= near * (1.0 + 1e-12), "{far} m with no return, {near} m with 650 m");
+            for (e, all) in [(&e, far), (&r, near)] {
+                let flown = e.spacing.parallax_m.unwrap_or(f64::INFINITY);
+                prop_assert!(flown >= all * (1.0 - 1e-12), "{flown} m in frame, {all} m over every pixel");
+            }
         }
     }
 }

@@ -582,27 +582,41 @@ impl Estimator {
                     let q = &p.quality;
                     if let Some(px) = q.parallax_px {
                         est.terms.parallax = true;
-                        est.spacing.parallax_m = if pitch_rad == 0.0 {
+                        let pct = (p.percentile_low, p.percentile_high);
+                        let all_per_m = if pitch_rad == 0.0 {
                             // Nadir: every pixel's gain is f, so this is MMDS's
-                            // `2·Δv/(gain·Δw·c_tex)` with `2·Δv/c_tex = px`.
-                            mmds_m(gain, hi - lo, 1.0, 0.5 * px)
+                            // `gain·Δw` on the depth range's own percentiles.
+                            Some(gain * (hi - lo))
                         } else {
-                            let surface = (self.grid.valid - self.grid.sky) as u64;
-                            parallax_per_m = disparity_span_per_m(
+                            disparity_span_per_m(
                                 &self.grid,
                                 &geom,
                                 pitch_rad,
-                                percentile_ranks(
-                                    surface + far,
-                                    p.percentile_low,
-                                    p.percentile_high,
-                                ),
+                                pct,
                                 far,
+                                None,
                                 &mut self.disparity,
                                 &mut self.selector,
-                            );
-                            parallax_per_m.and_then(|span| mmds_m(1.0, span, 1.0, 0.5 * px))
+                            )
                         };
+                        if let Some(all_per_m) = all_per_m {
+                            let (grid, scratch, selector) =
+                                (&self.grid, &mut self.disparity, &mut self.selector);
+                            let (per_m, spacing_m) = parallax_in_frame(all_per_m, px, |b| {
+                                disparity_span_per_m(
+                                    grid,
+                                    &geom,
+                                    pitch_rad,
+                                    pct,
+                                    far,
+                                    Some(b),
+                                    scratch,
+                                    selector,
+                                )
+                            });
+                            parallax_per_m = Some(per_m);
+                            est.spacing.parallax_m = spacing_m;
+                        }
                     }
                     if let Some(fo) = q.forward_overlap {
                         est.terms.forward_overlap = true;
@@ -866,40 +880,65 @@ fn far_below_horizon(grid: &InvGrid, geom: &super::depth::TrackGeometry, pitch_r
         .sum()
 }
 
-/// The robust span (the ranks of the depth range) of the disparity per metre
-/// of horizontal baseline over the surface samples and `far` samples beyond
-/// the range below the horizon (disparity 0, the smallest). Off nadir the disparity
-/// of a sample at along-track offset `u` and across-track offset `v` (px) is
-/// `(b/z)·|(f·cos φ − u·sin φ, v·sin φ)|`: the camera also moves along its
-/// optical axis by `b·sin φ`, which MMDS's `f·cos φ` leaves out. The truth
-/// (`eval::truth`) measures this span, so the parallax target is held on it.
+/// The robust span (the percentiles `pct` of the depth range) of the
+/// disparity per metre of horizontal baseline over the surface samples and
+/// `far` samples beyond the range below the horizon (disparity 0, the
+/// smallest). Off nadir the disparity of a sample at along-track offset `u`
+/// and across-track offset `v` (px) is `(b/z)·|(f·cos φ − u·sin φ, v·sin φ)|`:
+/// the camera also moves along its optical axis by `b·sin φ`, which MMDS's
+/// `f·cos φ` leaves out. The truth (`eval::truth`) measures this span, so the
+/// parallax target is held on it.
+///
+/// With `within_m = Some(b)` only the samples both captures of a step `b`
+/// keep in frame count (the truth's pixel set: a pixel one capture does not
+/// see has no parallax between them): those whose linearised shift by `b/2`
+/// either way, along and across track, stays inside the image's edges.
+#[allow(clippy::too_many_arguments)]
 pub fn disparity_span_per_m(
     grid: &InvGrid,
     geom: &super::depth::TrackGeometry,
     pitch_rad: f64,
-    ranks: [u64; 2],
+    pct: (f64, f64),
     far: u64,
+    within_m: Option<f64>,
     scratch: &mut Vec<f32>,
     selector: &mut Selector,
 ) -> Option<f64> {
     let (s, c) = pitch_rad.sin_cos();
     let axis = geom.focal_px * c;
-    let along2: Vec<f64> = grid
+    let along_gain: Vec<f64> = grid
         .along_idx
         .iter()
-        .map(|&i| {
-            let g = axis - geom.v_px(i) * s;
-            g * g
-        })
+        .map(|&i| axis - geom.v_px(i) * s)
+        .collect();
+    let along2: Vec<f64> = along_gain.iter().map(|g| g * g).collect();
+    // The largest inverse depth a sample may have and stay in both frames:
+    // its margin to the nearer edge (pixel edges at index −0.5 and n − 0.5)
+    // over its shift per 1/m at `b/2`. Infinite without `within_m`.
+    let limit = |shift_per_w: f64, index: usize, extent: usize| -> f64 {
+        let Some(b) = within_m else {
+            return f64::INFINITY;
+        };
+        let margin = (index as f64 + 0.5).min(extent as f64 - index as f64 - 0.5);
+        let shift = 0.5 * b * shift_per_w.abs();
+        if shift > 0.0 {
+            margin / shift
+        } else {
+            f64::INFINITY
+        }
+    };
+    let along_max: Vec<f64> = grid
+        .along_idx
+        .iter()
+        .zip(&along_gain)
+        .map(|(&i, &g)| limit(g, i, geom.along_px))
         .collect();
     let per_line = grid.per_line;
     scratch.clear();
     scratch.resize(grid.w.len(), INVALID);
     let mut gain = vec![0f64; per_line];
-    let across2 = |a: usize| {
-        let across = geom.across_px(grid.across_idx[a]) * s;
-        across * across
-    };
+    let across = |a: usize| geom.across_px(grid.across_idx[a]) * s;
+    let mut kept = 0u64;
     // Lines mirrored about the principal point share their gains (the same
     // `across²` bits): each gain row is computed once and serves both.
     let mut done = vec![false; grid.lines];
@@ -907,25 +946,96 @@ pub fn disparity_span_per_m(
         if done[a] {
             continue;
         }
-        let c2 = across2(a);
+        let c2 = across(a) * across(a);
         for (g, &g_along2) in gain.iter_mut().zip(&along2) {
             *g = (g_along2 + c2).sqrt();
         }
         let mirror = grid.lines - 1 - a;
-        let pair = (mirror > a && across2(mirror).to_bits() == c2.to_bits()).then_some(mirror);
+        let pair = (mirror > a && (across(mirror) * across(mirror)).to_bits() == c2.to_bits())
+            .then_some(mirror);
         for l in std::iter::once(a).chain(pair) {
             done[l] = true;
             let out = &mut scratch[l * per_line..(l + 1) * per_line];
-            for ((o, &w), &g) in out.iter_mut().zip(grid.line(l)).zip(&gain) {
-                // Sky (0) and invalid (negative) stay out of the selection.
-                // Computed for every sample and then chosen, which vectorises.
-                let d = (g * w as f64) as f32;
-                *o = if w > 0.0 { d } else { w };
+            let line = grid.line(l);
+            if within_m.is_none() {
+                for ((o, &w), &g) in out.iter_mut().zip(line).zip(&gain) {
+                    // Sky (0) and invalid (negative) stay out of the selection.
+                    // Computed for every sample and then chosen, which vectorises.
+                    let d = (g * w as f64) as f32;
+                    *o = if w > 0.0 { d } else { w };
+                }
+                kept += line.iter().filter(|&&w| w > 0.0).count() as u64;
+            } else {
+                let line_max = limit(across(l), grid.across_idx[l], geom.across_px);
+                for (((o, &w), &g), &w_max) in out.iter_mut().zip(line).zip(&gain).zip(&along_max) {
+                    let inside = (w as f64) <= w_max.min(line_max);
+                    *o = if w > 0.0 && inside {
+                        kept += 1;
+                        (g * w as f64) as f32
+                    } else if w > 0.0 {
+                        INVALID
+                    } else {
+                        w
+                    };
+                }
             }
         }
     }
+    let ranks = percentile_ranks(kept + far, pct.0, pct.1);
     let [lo, hi] = with_far(ranks, far, |r| selector.select2(scratch, false, r))?;
     Some((hi - lo) as f64)
+}
+
+/// Evaluations of the span in frame ([`parallax_in_frame`]): the pixel set
+/// changes only at the image's edges, so the spacing settles in two or three.
+pub const IN_FRAME_PASSES: usize = 3;
+
+/// The parallax term over the pixels both captures of a step keep in frame:
+/// `(span per metre, spacing)`. `all_per_m` is the span over every surface
+/// sample; `span_at(b)` the span over those both captures `b` apart keep
+/// ([`disparity_span_per_m`] with `within_m`). Starting from `px / all_per_m`,
+/// each spacing whose own pixel set's span keeps the parallax within `px` is
+/// accepted and the next tried is `px` over that span: fewer pixels, never a
+/// larger span, so the spacing only grows. The last spacing accepted is
+/// returned with its span, so `span · spacing ≤ px` holds for the pixel set
+/// the spacing itself leaves (checked, not assumed: a robust percentile can
+/// move outward when pixels leave). Where no pixel stays in both frames, or
+/// their span is 0, the term bounds nothing: `(0, None)`, as for a frame of
+/// one depth. If no spacing is accepted, `all_per_m`'s, as over every pixel.
+pub fn parallax_in_frame(
+    all_per_m: f64,
+    px: f64,
+    mut span_at: impl FnMut(f64) -> Option<f64>,
+) -> (f64, Option<f64>) {
+    let Some(first) = mmds_m(1.0, all_per_m, 1.0, 0.5 * px) else {
+        return (all_per_m, None);
+    };
+    let mut b = first;
+    let mut accepted = None;
+    for _ in 0..IN_FRAME_PASSES {
+        // No pixel in both frames, or no parallax between them: from here on
+        // (fewer pixels still) this term holds nothing back, as over a frame
+        // of one depth (the coverage term bounds such a step).
+        let span = span_at(b).unwrap_or(0.0);
+        if span == 0.0 {
+            return (0.0, None);
+        }
+        // A relative 1e-12: `b = px / span` by division, the product back may
+        // round up. A NaN span is not within.
+        let within = span * b <= px * (1.0 + 1e-12);
+        if !within {
+            break;
+        }
+        accepted = Some((span, b));
+        match mmds_m(1.0, span, 1.0, 0.5 * px) {
+            Some(next) if next > b => b = next,
+            _ => break,
+        }
+    }
+    match accepted {
+        Some((span, b)) => (span, Some(b)),
+        None => (all_per_m, Some(first)),
+    }
 }
 
 /// Each target's predicted value at `spacing_m`, from this frame.
@@ -1037,13 +1147,15 @@ mod tests {
                     let geom = intr.track(axis);
                     let n = (grid.valid - grid.sky) as u64;
                     for pitch in [0.3f64, -0.7, 1.2] {
-                        for ranks in [percentile_ranks(n, 0.005, 0.995), [0, n - 1]] {
+                        for pct in [(0.005, 0.995), (0.0, 1.0)] {
+                            let ranks = percentile_ranks(n, pct.0, pct.1);
                             let got = disparity_span_per_m(
                                 &grid,
                                 &geom,
                                 pitch,
-                                ranks,
+                                pct,
                                 0,
+                                None,
                                 &mut Vec::new(),
                                 &mut Selector::default(),
                             );
@@ -1058,5 +1170,190 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The span over the samples both captures `b` apart keep in frame, by
+    /// moving each sample's image position `b/2` each way and asking whether
+    /// both positions are inside the image (index −0.5 to n − 0.5).
+    fn span_in_frame_reference(
+        grid: &InvGrid,
+        geom: &super::super::depth::TrackGeometry,
+        pitch_rad: f64,
+        pct: (f64, f64),
+        b: f64,
+    ) -> Option<f64> {
+        let (s, c) = pitch_rad.sin_cos();
+        let axis = geom.focal_px * c;
+        let inside = |x: f64, n: usize| (-0.5..=n as f64 - 0.5).contains(&x);
+        let mut v = Vec::new();
+        for a in 0..grid.lines {
+            let j = grid.across_idx[a];
+            let across = geom.across_px(j) * s;
+            for (&w, &i) in grid.line(a).iter().zip(&grid.along_idx) {
+                let g = axis - geom.v_px(i) * s;
+                let w64 = w as f64;
+                let kept = [-0.5 * b, 0.5 * b].iter().all(|&h| {
+                    inside(i as f64 + h * g * w64, geom.along_px)
+                        && inside(j as f64 + h * across * w64, geom.across_px)
+                });
+                if w > 0.0 && kept {
+                    v.push(((g * g + across * across).sqrt() * w64) as f32);
+                }
+            }
+        }
+        let ranks = percentile_ranks(v.len() as u64, pct.0, pct.1);
+        let [lo, hi] = Selector::default().select2(&v, false, ranks)?;
+        Some((hi - lo) as f64)
+    }
+
+    #[test]
+    fn the_span_in_frame_counts_what_both_captures_keep() {
+        let (w, h) = (96usize, 61usize);
+        // Near ground with a slope, and the forward edge far away: the
+        // samples there leave the frame last, but their disparity is the smallest.
+        let data: Vec<f32> = (0..w * h)
+            .map(|k| {
+                let (u, r) = (k % w, k / w);
+                if k % 41 == 0 {
+                    0.0
+                } else if u >= w - 2 {
+                    60.0
+                } else {
+                    8.0 + u as f32 * 0.05 + r as f32 * 0.02
+                }
+            })
+            .collect();
+        let img = DepthImage::new(w, h, DepthData::Metres(data)).unwrap();
+        for cy in [None, Some((40.0, 20.0))] {
+            let intr = Intrinsics::from_hfov_deg(w, h, 69.0, cy).unwrap();
+            for axis in [TrackAxis::Rows, TrackAxis::Columns] {
+                for step in [1usize, 2] {
+                    let mut grid = InvGrid::default();
+                    fill_grid(&img, axis, step, &DepthRange::default(), &mut grid);
+                    let geom = intr.track(axis);
+                    for pitch in [0.0f64, 0.3, -0.7] {
+                        for b in [0.05, 0.4, 1.5, 6.0] {
+                            for pct in [(0.005, 0.995), (0.0, 1.0)] {
+                                let got = disparity_span_per_m(
+                                    &grid,
+                                    &geom,
+                                    pitch,
+                                    pct,
+                                    0,
+                                    Some(b),
+                                    &mut Vec::new(),
+                                    &mut Selector::default(),
+                                );
+                                let want = span_in_frame_reference(&grid, &geom, pitch, pct, b);
+                                assert_eq!(
+                                    got.map(f64::to_bits),
+                                    want.map(f64::to_bits),
+                                    "{cy:?} {axis:?} step {step} pitch {pitch} b {b}"
+                                );
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn the_spacing_in_frame_keeps_its_own_pixels_within_the_target() {
+        // A span that shrinks as pixels leave the frame.
+        let span_at = |b: f64| Some(if b < 0.9 { 2.5 } else { 2.0 });
+        let (per_m, b) = parallax_in_frame(3.0, 2.0, span_at);
+        let b = b.unwrap();
+        assert!(b > 2.0 / 3.0, "{b}");
+        assert!(per_m * b <= 2.0 * (1.0 + 1e-12), "{per_m} {b}");
+        assert_eq!(span_at(b), Some(per_m));
+        // Settled where the spacing's own span gives the spacing back (it does
+        // not jump to 1.0, where the span would be 2.0: that spacing is never
+        // reached from below).
+        assert_eq!((per_m, b), (2.5, 0.8));
+        // A span that grows when pixels leave (a percentile moving outward):
+        // no spacing beyond the one over every pixel is accepted.
+        assert_eq!(
+            parallax_in_frame(3.0, 2.0, |_| Some(3.5)),
+            (3.0, Some(2.0 / 3.0))
+        );
+        // No pixel left in both frames, or none with parallax: nothing to hold.
+        assert_eq!(parallax_in_frame(3.0, 2.0, |_| None), (0.0, None));
+        assert_eq!(
+            parallax_in_frame(3.0, 2.0, |b| Some(if b < 0.7 { 2.5 } else { 0.0 })),
+            (0.0, None)
+        );
+        // No span at all, a degenerate target.
+        assert_eq!(parallax_in_frame(0.0, 2.0, |_| Some(1.0)), (0.0, None));
+        assert_eq!(parallax_in_frame(f64::NAN, 2.0, |_| Some(1.0)).1, None);
+        let (per_m, b) = parallax_in_frame(3.0, 2.0, |_| Some(f64::NAN));
+        assert_eq!((per_m, b), (3.0, Some(2.0 / 3.0)));
+    }
+
+    #[test]
+    fn far_ground_entering_the_forward_edge_does_not_shorten_the_spacing() {
+        // Ground 10 m below with a gentle slope; the last along-track column
+        // looks past an edge at ground 20 m away. The captures of a step do
+        // not both see that column, so its disparity is not a parallax between them.
+        let (w, h) = (120usize, 90usize);
+        let depth = |far_edge: bool| -> Vec<f32> {
+            (0..w * h)
+                .map(|k| {
+                    let (u, r) = (k % w, k / w);
+                    if far_edge && u == w - 1 {
+                        20.0
+                    } else {
+                        10.0 + u as f32 * 0.02 + r as f32 * 0.01
+                    }
+                })
+                .collect()
+        };
+        let intr = Intrinsics::from_hfov_deg(w, h, 69.0, None).unwrap();
+        let params = EstimatorParams::default();
+        for pitch in [0.0f64, 0.2] {
+            let spacing = |far_edge: bool| {
+                let img = DepthImage::new(w, h, DepthData::Metres(depth(far_edge))).unwrap();
+                estimate_at_step(&img, &intr, pitch, &params)
+                    .spacing
+                    .parallax_m
+                    .unwrap()
+            };
+            let (plain, with_edge) = (spacing(false), spacing(true));
+            // Over every pixel the far column would shorten it by a third or more.
+            let mut grid = InvGrid::default();
+            let img = DepthImage::new(w, h, DepthData::Metres(depth(true))).unwrap();
+            fill_grid(&img, params.track_axis, 1, &params.depth_range, &mut grid);
+            let all = disparity_span_per_m(
+                &grid,
+                &intr.track(params.track_axis),
+                pitch,
+                (params.percentile_low, params.percentile_high),
+                0,
+                None,
+                &mut Vec::new(),
+                &mut Selector::default(),
+            )
+            .unwrap();
+            assert!(
+                2.0 / all < 0.67 * plain,
+                "pitch {pitch}: {} {plain}",
+                2.0 / all
+            );
+            assert!(
+                (with_edge / plain - 1.0).abs() < 0.02,
+                "pitch {pitch}: {with_edge} against {plain}"
+            );
+        }
+    }
+
+    fn estimate_at_step(
+        img: &DepthImage,
+        intr: &Intrinsics,
+        pitch: f64,
+        params: &EstimatorParams,
+    ) -> Estimate {
+        Estimator::new(params.clone())
+            .estimate_at(img, intr, pitch, 1)
+            .unwrap()
     }
 }
