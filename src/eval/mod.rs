@@ -1201,22 +1201,33 @@ pub fn evaluate_scene(
             }
         }
         let seg_est = &estimates[a..=b];
-        // At the target spacing, what the daemon would see of the worst interval: the open
-        // loop from each frame's depth (worst over the segment's frames), the closed loop
-        // from the captures' and the middle frame's kept depth (worst over the intervals).
+        // At the target spacing, what the daemon would see of the worst interval, on the
+        // intervals the truth judges: the open loop from the depth of each interval's
+        // middle frame (its prediction is for captures half the spacing either side),
+        // where the truth judged that middle view (inside the segment); the closed loop
+        // from the captures' and the middle frame's kept depth. Worst over the intervals.
+        // (Until the thirteenth session the open loop took every frame of the segment, so
+        // its end frame spoke for an interval across the segment's end that the truth
+        // does not judge: docs/eval.md.)
+        let target_intervals: Vec<(usize, usize)> = target_k.map_or(Vec::new(), |k| {
+            let mut intervals: Vec<(usize, usize)> =
+                tasks_at(k).iter().map(|&(i, j, _)| (i, j)).collect();
+            intervals.dedup();
+            intervals
+        });
         let open_at = |f: fn(&crate::core::QualityPrediction) -> Option<f64>| {
             target_m.and_then(|t| {
-                visibilities[a..=b]
+                target_intervals
                     .iter()
-                    .filter_map(|v| v.predict_at(t).as_ref().and_then(f))
+                    .map(|&(i, j)| (i + j) / 2)
+                    .filter(|mid| (a..=b).contains(mid))
+                    .filter_map(|mid| visibilities[mid].predict_at(t).as_ref().and_then(f))
                     .reduce(f64::max)
             })
         };
         let (parallax_closed_px, unseen_closed) = match target_k {
-            Some(k) => {
-                let mut intervals: Vec<(usize, usize)> =
-                    tasks_at(k).iter().map(|&(i, j, _)| (i, j)).collect();
-                intervals.dedup();
+            Some(_) => {
+                let intervals = &target_intervals;
                 let measured: Vec<(Option<f64>, f64)> = intervals
                     .par_iter()
                     .map(|&(i, j)| {
