@@ -1227,8 +1227,7 @@ pub fn evaluate_scene(
         };
         let (parallax_closed_px, unseen_closed) = match target_k {
             Some(_) => {
-                let intervals = &target_intervals;
-                let measured: Vec<(Option<f64>, f64)> = intervals
+                let measured: Vec<(Option<f64>, f64)> = target_intervals
                     .par_iter()
                     .map(|&(i, j)| {
                         let p = closedloop::pair(&kept[i], &kept[j]).parallax_span_px;

@@ -927,18 +927,26 @@ pub fn disparity_span_per_m(
             f64::INFINITY
         }
     };
-    let along_max: Vec<f64> = grid
-        .along_idx
-        .iter()
-        .zip(&along_gain)
-        .map(|(&i, &g)| limit(g, i, geom.along_px))
-        .collect();
+    let along_max: Vec<f64> = match within_m {
+        Some(_) => grid
+            .along_idx
+            .iter()
+            .zip(&along_gain)
+            .map(|(&i, &g)| limit(g, i, geom.along_px))
+            .collect(),
+        None => Vec::new(),
+    };
     let per_line = grid.per_line;
     scratch.clear();
     scratch.resize(grid.w.len(), INVALID);
     let mut gain = vec![0f64; per_line];
     let across = |a: usize| geom.across_px(grid.across_idx[a]) * s;
-    let mut kept = 0u64;
+    // Every surface sample (`w > 0`: valid ones less sky) unless some leave the frame.
+    let mut kept = if within_m.is_none() {
+        (grid.valid - grid.sky) as u64
+    } else {
+        0
+    };
     // Lines mirrored about the principal point share their gains (the same
     // `across²` bits): each gain row is computed once and serves both.
     let mut done = vec![false; grid.lines];
@@ -964,7 +972,6 @@ pub fn disparity_span_per_m(
                     let d = (g * w as f64) as f32;
                     *o = if w > 0.0 { d } else { w };
                 }
-                kept += line.iter().filter(|&&w| w > 0.0).count() as u64;
             } else {
                 let line_max = limit(across(l), grid.across_idx[l], geom.across_px);
                 for (((o, &w), &g), &w_max) in out.iter_mut().zip(line).zip(&gain).zip(&along_max) {
