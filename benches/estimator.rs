@@ -3,7 +3,9 @@
 //! sum of its u16 values). `scripts/bench-ratios.py` prints every figure as a
 //! ratio to that baseline, since this machine is shared and noisy.
 
-use alfd::core::estimate::{disparity_span_per_m, parallax_in_frame, visibility_step, Estimator};
+use alfd::core::estimate::{
+    disparity_span_per_m, parallax_in_frame, visibility_step, Estimator, InFrameSpans,
+};
 use alfd::core::inverse::{fill_grid, fill_grid_counted, percentile_ranks, InvGrid, Selector};
 use alfd::core::occlusion::{scan, BoundaryParams};
 use alfd::core::plane;
@@ -187,26 +189,22 @@ fn bench(c: &mut Criterion) {
                 )
             })
         });
-        // The term as the estimator runs it: the span over every sample, then
-        // over the samples both captures keep in frame until the spacing settles.
+        // The term as the estimator runs it: one fill, the span over every
+        // sample, then over the samples both captures keep in frame until the
+        // spacing settles.
         g.bench_function("stage_parallax_in_frame", |b| {
             b.iter(|| {
-                let span = |within, scratch: &mut Vec<f32>, sel: &mut Selector| {
-                    disparity_span_per_m(
-                        black_box(&grid),
-                        &geom,
-                        pitch,
-                        (0.005, 0.995),
-                        0,
-                        within,
-                        scratch,
-                        sel,
-                    )
-                };
-                let all = span(None, &mut scratch, &mut sel)?;
-                Some(parallax_in_frame(all, 2.0, |b| {
-                    span(Some(b), &mut scratch, &mut sel)
-                }))
+                let mut spans = InFrameSpans::new(
+                    black_box(&grid),
+                    &geom,
+                    pitch,
+                    (0.005, 0.995),
+                    0,
+                    &mut scratch,
+                    &mut sel,
+                );
+                let all = spans.span_all()?;
+                Some(parallax_in_frame(all, 2.0, |b| spans.span_at(b)))
             })
         });
         let vstep = visibility_step(grid.samples(), 1, params.visibility_samples_max);

@@ -222,6 +222,65 @@ fn the_depth_map_fast_path_agrees_with_the_exact_test_on_shipped_scenes() {
     assert!(frac < 1e-4, "{differ} of {total} pixels differ");
 }
 
+/// `Truth::occluded` tries a primitive's exact test only where its bounds meet
+/// the segment's. Every surface point a view sees, from cameras along the line
+/// either side (points on walls and crowns seen edge-on included), against
+/// the same exact tests on every primitive: not one answer may differ.
+#[test]
+fn the_occlusion_test_bounded_by_the_segment_agrees_with_every_primitive_tested() {
+    use alfd::render::{ray_box, ray_ellipsoid};
+    let plain = |scene: &Scene, c: [f64; 3], p: [f64; 3]| {
+        let d = [p[0] - c[0], p[1] - c[1], p[2] - c[2]];
+        let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt().max(1e-9);
+        let before = 1.0 - 1e-5 - 0.01 / len;
+        scene
+            .boxes
+            .iter()
+            .any(|b| ray_box(b.min_m, b.max_m, c, d).is_some_and(|(t, _)| t < before))
+            || scene
+                .ellipsoids
+                .iter()
+                .any(|e| ray_ellipsoid(e.centre_m, e.radii_m, c, d).is_some_and(|t| t < before))
+    };
+    let (mut tested, mut hidden) = (0usize, 0usize);
+    for name in ["orchard", "district", "tree", "canyon"] {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("scenes/{name}.toml"));
+        let mut scene = Scene::load(&path).unwrap();
+        scene.survey.width = 80;
+        scene.survey.height = 60;
+        let g = geometry(&scene);
+        let truth = Truth::new(&scene, g);
+        let s = &scene.survey;
+        let x0 = 0.5 * (s.start_x_m + s.end_x_m);
+        let v = view(&scene, x0);
+        for r in 0..g.height {
+            for i in 0..g.width {
+                let d = v.depth_m[r * g.width + i] as f64;
+                if !(d.is_finite() && d > 0.0) {
+                    continue;
+                }
+                let p = truth.point(x0, i, r, d);
+                for dx in [-30.0, -7.5, -1.0, 0.0, 2.5, 12.0] {
+                    let c = [x0 + dx, s.y_m, s.altitude_m];
+                    let want = plain(&scene, c, p);
+                    assert_eq!(
+                        truth.occluded(c, p),
+                        want,
+                        "{name} pixel ({i}, {r}) from {dx} m"
+                    );
+                    tested += 1;
+                    hidden += want as usize;
+                }
+            }
+        }
+    }
+    // Both answers occur often enough for the comparison to mean something.
+    assert!(
+        hidden > tested / 50 && hidden < tested / 2,
+        "{hidden} of {tested}"
+    );
+}
+
 /// The estimator under evaluation reads each view's depth through `eval_sensor()`, the truth
 /// reads the exact depth: a surface past the sensor's range is one the truth counts and the
 /// estimator cannot see (it reads as sky). `edifice`'s far ground, 115-140 m along the axis
