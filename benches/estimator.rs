@@ -185,7 +185,6 @@ fn bench(c: &mut Criterion) {
                     0,
                     None,
                     &mut scratch,
-                    &mut sel,
                 )
             })
         });
@@ -201,7 +200,6 @@ fn bench(c: &mut Criterion) {
                     (0.005, 0.995),
                     0,
                     &mut scratch,
-                    &mut sel,
                 );
                 let all = spans.span_all()?;
                 Some(parallax_in_frame(all, 2.0, |b| spans.span_at(b)))

@@ -4,7 +4,7 @@
 
 use super::depth::{DepthImage, Intrinsics, HORIZON_EPS};
 use super::inverse::{
-    fill_grid, fill_grid_counted, percentile_ranks, InvGrid, Selector, FAR, INVALID, LEVEL1_BINS,
+    fill_grid, fill_grid_counted, percentile_ranks, InvGrid, Selector, FAR, INVALID,
 };
 use super::occlusion::{scan, BoundaryParams, BoundaryStats};
 use super::params::{Decimation, EstimatorParams, GainModel, Model, Quality};
@@ -592,7 +592,6 @@ impl Estimator {
                             pct,
                             far,
                             &mut self.disparity,
-                            &mut self.selector,
                         );
                         let all_per_m = if pitch_rad == 0.0 {
                             // Nadir: every pixel's gain is f, so this is MMDS's
@@ -895,9 +894,8 @@ pub fn disparity_span_per_m(
     far: u64,
     within_m: Option<f64>,
     scratch: &mut Vec<f32>,
-    selector: &mut Selector,
 ) -> Option<f64> {
-    let mut spans = InFrameSpans::new(grid, geom, pitch_rad, pct, far, scratch, selector);
+    let mut spans = InFrameSpans::new(grid, geom, pitch_rad, pct, far, scratch);
     match within_m {
         None => spans.span_all(),
         Some(b) => spans.span_at(b),
@@ -906,12 +904,14 @@ pub fn disparity_span_per_m(
 
 /// The spans of [`disparity_span_per_m`] of one frame, over every surface
 /// sample and over those both captures of a step keep, from one fill of the
-/// disparities and one count of their top bits. A step's set is every sample
-/// less those that leave the frame, and only samples near an edge can leave
-/// (a margin below the largest shift), so a step costs a walk of the edge
-/// bands and one pass for the candidates of the percentiles' bins, not a
-/// fill, a count and that pass (the span in frame was 3 of the 6.4 ms of a
-/// 640×480 estimate). The values are the same bits as a fill per step gives.
+/// disparities and one count of their top 16 bits (a bin is 1/128 of an
+/// octave). A step's set is every sample less those that leave the frame,
+/// and only samples near an edge can leave (a margin below the largest
+/// shift), so a step costs a walk of the edge bands, a look-up in the count
+/// less those samples, and one pass for the few values in the percentiles'
+/// bins: not a fill, a count and a selection over the frame each (the span
+/// in frame was 3 of the 6.4 ms of a 640×480 estimate). An order statistic
+/// is a value, so the result is the same bits however it is found.
 pub struct InFrameSpans<'a> {
     grid: &'a InvGrid,
     geom: &'a super::depth::TrackGeometry,
@@ -921,12 +921,26 @@ pub struct InFrameSpans<'a> {
     along_gain: Vec<f64>,
     /// Per sample: its disparity per metre where `w > 0`, else `w` itself.
     values: &'a [f32],
-    /// Top 11 bits of the positive values (bin 0, with the sky, left out).
-    level1: Box<[u32; LEVEL1_BINS]>,
+    /// Count of the positive values by their top 16 bits; bins below
+    /// [`FINE_FIRST`] (+0.0, the sky, and subnormals) are not counted.
+    fine: Vec<u32>,
+    /// Sums of `fine` over blocks of [`FINE_BLOCK`] bins.
+    blocks: Vec<u32>,
     /// The largest inverse depth of a surface sample (0 if none).
     w_top: f32,
-    selector: &'a mut Selector,
+    /// The values (bits) of the bins `gathered_bins`, each ascending (when
+    /// both ranks share a bin, the first holds it).
+    gathered: [Vec<u32>; 2],
+    gathered_bins: [usize; 2],
+    leaving_in_bin: Vec<u32>,
 }
+
+/// Bins of [`InFrameSpans`]'s count: the top 16 bits of a positive `f32`.
+const FINE_BINS: usize = 1 << 15;
+/// Values below `2^21` in bits (zero and the smallest subnormals) are left
+/// out, as [`Selector::select2`] leaves out its bin 0 without the sky.
+const FINE_FIRST: usize = 1 << 5;
+const FINE_BLOCK: usize = 64;
 
 impl<'a> InFrameSpans<'a> {
     pub fn new(
@@ -936,7 +950,6 @@ impl<'a> InFrameSpans<'a> {
         pct: (f64, f64),
         far: u64,
         scratch: &'a mut Vec<f32>,
-        selector: &'a mut Selector,
     ) -> InFrameSpans<'a> {
         let (s, c) = pitch_rad.sin_cos();
         let axis = geom.focal_px * c;
@@ -976,15 +989,33 @@ impl<'a> InFrameSpans<'a> {
                 }
             }
         }
-        let mut level1 = Box::new([0u32; LEVEL1_BINS]);
-        for &v in scratch.iter() {
-            let bin = (v.to_bits() >> 21) as usize;
-            if bin < LEVEL1_BINS {
-                level1[bin] += 1;
+        // Two interleaved counts, so a run of equal values (flat ground) does
+        // not wait on one counter; negative values (sign bit) fall past the end.
+        let mut twin = vec![0u32; 2 * FINE_BINS];
+        let (c0, c1) = twin.split_at_mut(FINE_BINS);
+        let bin = |v: f32| (v.to_bits() >> 16) as usize;
+        let mut pairs = scratch.chunks_exact(2);
+        for p in &mut pairs {
+            if let Some(c) = c0.get_mut(bin(p[0])) {
+                *c += 1;
+            }
+            if let Some(c) = c1.get_mut(bin(p[1])) {
+                *c += 1;
             }
         }
-        level1[0] = 0;
-        let w_top = grid.w.iter().fold(0f32, |m, &w| if w > m { w } else { m });
+        for &v in pairs.remainder() {
+            if let Some(c) = c0.get_mut(bin(v)) {
+                *c += 1;
+            }
+        }
+        let mut fine: Vec<u32> = c0.iter().zip(c1.iter()).map(|(a, b)| a + b).collect();
+        fine[..FINE_FIRST].fill(0);
+        let blocks = fine
+            .chunks_exact(FINE_BLOCK)
+            .map(|b| b.iter().sum())
+            .collect();
+        // `f32::max` passes over NaN (no NaN is a surface sample); vectorises.
+        let w_top = grid.w.iter().fold(0f32, |m, &w| m.max(w));
         InFrameSpans {
             grid,
             geom,
@@ -993,9 +1024,13 @@ impl<'a> InFrameSpans<'a> {
             far,
             along_gain,
             values: scratch,
-            level1,
+            fine,
+            blocks,
             w_top,
-            selector,
+            gathered: [Vec::new(), Vec::new()],
+            leaving_in_bin: Vec::new(),
+            // No value has these bins (they are past the count).
+            gathered_bins: [FINE_BINS; 2],
         }
     }
 
@@ -1007,11 +1042,7 @@ impl<'a> InFrameSpans<'a> {
     /// The span over every surface sample and the `far` ones.
     pub fn span_all(&mut self) -> Option<f64> {
         let ranks = percentile_ranks(self.surface() + self.far, self.pct.0, self.pct.1);
-        let (values, level1) = (self.values, &self.level1);
-        let selector = &mut *self.selector;
-        let [lo, hi] = with_far(ranks, self.far, |r| {
-            selector.select2_from(values, level1, r, |_| true)
-        })?;
+        let [lo, hi] = with_far(ranks, self.far, |r| self.select2(r, &[]))?;
         Some((hi - lo) as f64)
     }
 
@@ -1049,7 +1080,9 @@ impl<'a> InFrameSpans<'a> {
         let edge_cols: Vec<usize> = (0..grid.per_line)
             .filter(|&i| along_max[i].is_nan() || along_max[i] < w_top)
             .collect();
-        let mut level = *self.level1;
+        // The samples that leave, taken out of the count for this step and
+        // put back after it.
+        let mut left: Vec<(usize, f32)> = Vec::new();
         let mut leaving = 0u64;
         for (l, &lm) in line_max.iter().enumerate() {
             let line = grid.line(l);
@@ -1058,10 +1091,9 @@ impl<'a> InFrameSpans<'a> {
                 let w = line[i];
                 if w > 0.0 && !inside(w, i, l) {
                     leaving += 1;
-                    let bin = (values[i].to_bits() >> 21) as usize;
-                    // Bin 0 is not counted (`level1`).
-                    if (1..LEVEL1_BINS).contains(&bin) {
-                        level[bin] -= 1;
+                    let bin = (values[i].to_bits() >> 16) as usize;
+                    if (FINE_FIRST..FINE_BINS).contains(&bin) {
+                        left.push((bin, values[i]));
                     }
                 }
             };
@@ -1073,18 +1105,100 @@ impl<'a> InFrameSpans<'a> {
         }
         let kept = self.surface() - leaving;
         let ranks = percentile_ranks(kept + self.far, self.pct.0, self.pct.1);
-        let per_line = grid.per_line;
-        let values = self.values;
-        let selector = &mut *self.selector;
-        let [lo, hi] = with_far(ranks, self.far, |r| {
-            selector.select2_from(values, &level, r, |k| {
-                let w = grid.w[k];
-                // The value a fill for this step would hold is this one
-                // unless the sample is a surface sample that leaves.
-                w.is_nan() || w <= 0.0 || inside(w, k % per_line, k / per_line)
-            })
-        })?;
+        for &(bin, _) in &left {
+            self.fine[bin] -= 1;
+            self.blocks[bin / FINE_BLOCK] -= 1;
+        }
+        let found = with_far(ranks, self.far, |r| self.select2(r, &left));
+        for &(bin, _) in &left {
+            self.fine[bin] += 1;
+            self.blocks[bin / FINE_BLOCK] += 1;
+        }
+        let [lo, hi] = found?;
         Some((hi - lo) as f64)
+    }
+
+    /// The values of 0-based `ranks` among every counted value less the
+    /// multiset `left` (`(bin, value)` of the samples that leave, already out
+    /// of `fine`); `None` past their number.
+    fn select2(&mut self, ranks: [u64; 2], left: &[(usize, f32)]) -> Option<[f32; 2]> {
+        let total: u64 = self.blocks.iter().map(|&c| c as u64).sum();
+        if ranks.iter().any(|&r| r >= total) {
+            return None;
+        }
+        // The bin holding each rank, by blocks then bins, and the rank in it.
+        let locate = |rank: u64| {
+            let mut rem = rank;
+            let mut bin = 0;
+            for (k, &c) in self.blocks.iter().enumerate() {
+                if rem < c as u64 {
+                    bin = k * FINE_BLOCK;
+                    break;
+                }
+                rem -= c as u64;
+            }
+            while rem >= self.fine[bin] as u64 {
+                rem -= self.fine[bin] as u64;
+                bin += 1;
+            }
+            (bin, rem as usize)
+        };
+        let at = ranks.map(locate);
+        self.gather([at[0].0, at[1].0]);
+        let mut out = [0f32; 2];
+        for (t, &(bin, rem)) in at.iter().enumerate() {
+            // Every value of the bin, ascending (positive floats order as
+            // their bits), and those of it that leave, ascending: the
+            // `rem`-th of what is kept is the value of `all` at `rem` plus
+            // each leaving value at or below it.
+            let all = &self.gathered[usize::from(self.gathered_bins[0] != bin)];
+            self.leaving_in_bin.clear();
+            self.leaving_in_bin
+                .extend(left.iter().filter(|l| l.0 == bin).map(|l| l.1.to_bits()));
+            self.leaving_in_bin.sort_unstable();
+            let mut k = rem;
+            for &l in &self.leaving_in_bin {
+                match all.get(k) {
+                    Some(&v) if l <= v => k += 1,
+                    _ => break,
+                }
+            }
+            // The count and the bin's values agree, so `k` is inside.
+            debug_assert!(k < all.len(), "{k} of {}", all.len());
+            out[t] = f32::from_bits(*all.get(k).or(all.last())?);
+        }
+        Some(out)
+    }
+
+    /// Every value of `bins`, each bin's ascending, unless a pass of this
+    /// frame gathered them already (its steps mostly land in the same bins).
+    fn gather(&mut self, bins: [usize; 2]) {
+        if bins.iter().all(|b| self.gathered_bins.contains(b)) {
+            return;
+        }
+        self.gathered_bins = bins;
+        let [g0, g1] = &mut self.gathered;
+        g0.clear();
+        g1.clear();
+        let bin = |v: f32| (v.to_bits() >> 16) as usize;
+        for chunk in self.values.chunks(8) {
+            // Without a branch per value (vectorises): most chunks hold none.
+            let any = chunk
+                .iter()
+                .fold(false, |a, &v| a | (bin(v) == bins[0]) | (bin(v) == bins[1]));
+            if !any {
+                continue;
+            }
+            for &v in chunk {
+                if bin(v) == bins[0] {
+                    g0.push(v.to_bits());
+                } else if bin(v) == bins[1] {
+                    g1.push(v.to_bits());
+                }
+            }
+        }
+        g0.sort_unstable();
+        g1.sort_unstable();
     }
 }
 
@@ -1259,7 +1373,6 @@ mod tests {
                                 0,
                                 None,
                                 &mut Vec::new(),
-                                &mut Selector::default(),
                             );
                             let want = span_reference(&grid, &geom, pitch, ranks);
                             assert_eq!(
@@ -1308,6 +1421,52 @@ mod tests {
         Some((hi - lo) as f64)
     }
 
+    /// One fill serving many steps, in any order, on depth in plateaus (runs
+    /// of equal disparities, as Z16 ground gives, across the percentiles'
+    /// bins and the edges): every span the same bits as the reference's.
+    #[test]
+    fn one_fill_serves_every_step_with_the_reference_spans() {
+        let (w, h) = (90usize, 70usize);
+        let data: Vec<f32> = (0..w * h)
+            .map(|k| {
+                let (u, r) = (k % w, k / w);
+                if k % 53 == 0 {
+                    0.0
+                } else {
+                    // Half-metre plateaus from 9 to 14 m, a roof block at 6 m.
+                    let d = 9.0 + ((u + 2 * r) / 40) as f32 * 0.5;
+                    if (30..50).contains(&u) && (20..40).contains(&r) {
+                        6.0
+                    } else {
+                        d
+                    }
+                }
+            })
+            .collect();
+        let img = DepthImage::new(w, h, DepthData::Metres(data)).unwrap();
+        let intr = Intrinsics::from_hfov_deg(w, h, 69.0, None).unwrap();
+        for axis in [TrackAxis::Rows, TrackAxis::Columns] {
+            let mut grid = InvGrid::default();
+            fill_grid(&img, axis, 1, &DepthRange::default(), &mut grid);
+            let geom = intr.track(axis);
+            for pitch in [0.0f64, 0.4] {
+                for pct in [(0.005, 0.995), (0.1, 0.9), (0.5, 0.5)] {
+                    let mut scratch = Vec::new();
+                    let mut spans = InFrameSpans::new(&grid, &geom, pitch, pct, 0, &mut scratch);
+                    assert!(spans.span_all().is_some());
+                    for b in [0.3, 1.0, 2.5, 0.1, 6.0, 1.0, 40.0] {
+                        let want = span_in_frame_reference(&grid, &geom, pitch, pct, b);
+                        assert_eq!(
+                            spans.span_at(b).map(f64::to_bits),
+                            want.map(f64::to_bits),
+                            "{axis:?} pitch {pitch} pct {pct:?} b {b}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+
     #[test]
     fn the_span_in_frame_counts_what_both_captures_keep() {
         let (w, h) = (96usize, 61usize);
@@ -1344,7 +1503,6 @@ mod tests {
                                     0,
                                     Some(b),
                                     &mut Vec::new(),
-                                    &mut Selector::default(),
                                 );
                                 let want = span_in_frame_reference(&grid, &geom, pitch, pct, b);
                                 assert_eq!(
@@ -1433,7 +1591,6 @@ mod tests {
                 0,
                 None,
                 &mut Vec::new(),
-                &mut Selector::default(),
             )
             .unwrap();
             assert!(

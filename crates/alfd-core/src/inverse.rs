@@ -355,10 +355,6 @@ fn fill_lines<T: Copy>(
     }
 }
 
-/// Level-1 bins of [`Selector`] that hold positive values (the top 11 bits
-/// of an `f32` with its sign bit clear).
-pub const LEVEL1_BINS: usize = 1024;
-
 /// Scratch for radix selection: four interleaved 2048-bin histograms (so runs
 /// of equal values do not serialise on one counter) and the candidate values
 /// of the two targets.
@@ -429,30 +425,14 @@ impl Selector {
             // SKY is +0.0, in bin 0 with the subnormals, which no depth produces.
             self.hist[0] = 0;
         }
-        let mut level1 = [0u32; LEVEL1_BINS];
-        level1.copy_from_slice(&self.hist[..LEVEL1_BINS]);
-        self.select2_from(values, &level1, ranks, |_| true)
-    }
-
-    /// [`Selector::select2`] over the values `keep` admits (by index), given
-    /// their level-1 count (`level1`: the top 11 bits of the positive values,
-    /// bin 0 left out unless the sky counts): one pass over `values` for the
-    /// candidates instead of a histogram and that pass.
-    pub fn select2_from(
-        &mut self,
-        values: &[f32],
-        level1: &[u32; LEVEL1_BINS],
-        ranks: [u64; 2],
-        keep: impl Fn(usize) -> bool,
-    ) -> Option<[f32; 2]> {
-        let total: u64 = level1.iter().map(|&c| c as u64).sum();
+        let total: u64 = self.hist[..1024].iter().map(|&c| c as u64).sum();
         if ranks.iter().any(|&r| r >= total) {
             return None;
         }
         let mut prefix = [0u32; 2];
         let mut rem = [0u64; 2];
         for t in 0..2 {
-            let (b, r) = find_bin(level1, ranks[t]);
+            let (b, r) = find_bin(&self.hist[..1024], ranks[t]);
             prefix[t] = b as u32;
             rem[t] = r;
         }
@@ -461,13 +441,11 @@ impl Selector {
         let [c0, c1] = &mut self.cand;
         c0.clear();
         c1.clear();
-        for (k, &w) in values.iter().enumerate() {
+        for &w in values {
             let top = w.to_bits() >> 21;
             if top == prefix[0] {
-                if keep(k) {
-                    c0.push(w);
-                }
-            } else if !same && top == prefix[1] && keep(k) {
+                c0.push(w);
+            } else if !same && top == prefix[1] {
                 c1.push(w);
             }
         }
