@@ -82,37 +82,18 @@ fn estimate_range(
         out.extend(samples);
         return;
     }
-    let chunks: Vec<std::ops::Range<usize>> = range
-        .clone()
-        .step_by(CHUNK)
-        .map(|start| start..(start + CHUNK).min(range.end))
-        .collect();
-    let render_chunk = |chunk: &std::ops::Range<usize>, slots: &mut [Option<Vec<f32>>]| {
-        poses[chunk.clone()]
+    for start in range.clone().step_by(CHUNK) {
+        let chunk = start..(start + CHUNK).min(range.end);
+        let depths: Vec<Vec<f32>> = poses[chunk.clone()]
             .par_iter()
-            .zip(slots.par_iter_mut())
+            .zip(rendered[chunk.clone()].par_iter_mut())
             .map(|(p, slot)| depth_at(p, slot))
-            .collect::<Vec<Vec<f32>>>()
-    };
-    let Some(first) = chunks.first() else {
-        return;
-    };
-    let mut depths = render_chunk(first, &mut rendered[first.clone()]);
-    // The next chunk renders while this one is estimated (the estimates are
-    // sequential, the renders not): at most two chunks of depth at once.
-    for (i, chunk) in chunks.iter().enumerate() {
-        let next = chunks.get(i + 1);
-        let (rendered_next, ()) = rayon::join(
-            || next.map(|n| render_chunk(n, &mut rendered[n.clone()])),
-            || {
-                for (k, depth) in chunk.clone().zip(std::mem::take(&mut depths)) {
-                    let (axis, pitch_rad) = axis_pitch(poses, k, params.track_axis);
-                    sequential.set_track_axis(axis);
-                    out.push(sample(sequential, &poses[k], intrinsics, depth, pitch_rad));
-                }
-            },
-        );
-        depths = rendered_next.unwrap_or_default();
+            .collect();
+        for (k, depth) in chunk.zip(depths) {
+            let (axis, pitch_rad) = axis_pitch(poses, k, params.track_axis);
+            sequential.set_track_axis(axis);
+            out.push(sample(sequential, &poses[k], intrinsics, depth, pitch_rad));
+        }
     }
 }
 

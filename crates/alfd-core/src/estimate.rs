@@ -942,6 +942,12 @@ const FINE_BINS: usize = 1 << 15;
 const FINE_FIRST: usize = 1 << 5;
 const FINE_BLOCK: usize = 64;
 
+/// A value's bin in [`InFrameSpans`]'s count (past the count if negative).
+#[inline]
+fn fine_bin(v: f32) -> usize {
+    (v.to_bits() >> 16) as usize
+}
+
 impl<'a> InFrameSpans<'a> {
     pub fn new(
         grid: &'a InvGrid,
@@ -991,24 +997,24 @@ impl<'a> InFrameSpans<'a> {
         }
         // Two interleaved counts, so a run of equal values (flat ground) does
         // not wait on one counter; negative values (sign bit) fall past the end.
-        let mut twin = vec![0u32; 2 * FINE_BINS];
-        let (c0, c1) = twin.split_at_mut(FINE_BINS);
-        let bin = |v: f32| (v.to_bits() >> 16) as usize;
+        let mut fine = vec![0u32; 2 * FINE_BINS];
+        let (c0, c1) = fine.split_at_mut(FINE_BINS);
         let mut pairs = scratch.chunks_exact(2);
         for p in &mut pairs {
-            if let Some(c) = c0.get_mut(bin(p[0])) {
+            if let Some(c) = c0.get_mut(fine_bin(p[0])) {
                 *c += 1;
             }
-            if let Some(c) = c1.get_mut(bin(p[1])) {
+            if let Some(c) = c1.get_mut(fine_bin(p[1])) {
                 *c += 1;
             }
         }
         for &v in pairs.remainder() {
-            if let Some(c) = c0.get_mut(bin(v)) {
+            if let Some(c) = c0.get_mut(fine_bin(v)) {
                 *c += 1;
             }
         }
-        let mut fine: Vec<u32> = c0.iter().zip(c1.iter()).map(|(a, b)| a + b).collect();
+        c0.iter_mut().zip(c1.iter()).for_each(|(a, b)| *a += b);
+        fine.truncate(FINE_BINS);
         fine[..FINE_FIRST].fill(0);
         let blocks = fine
             .chunks_exact(FINE_BLOCK)
@@ -1091,7 +1097,7 @@ impl<'a> InFrameSpans<'a> {
                 let w = line[i];
                 if w > 0.0 && !inside(w, i, l) {
                     leaving += 1;
-                    let bin = (values[i].to_bits() >> 16) as usize;
+                    let bin = fine_bin(values[i]);
                     if (FINE_FIRST..FINE_BINS).contains(&bin) {
                         left.push((bin, values[i]));
                     }
@@ -1180,19 +1186,18 @@ impl<'a> InFrameSpans<'a> {
         let [g0, g1] = &mut self.gathered;
         g0.clear();
         g1.clear();
-        let bin = |v: f32| (v.to_bits() >> 16) as usize;
         for chunk in self.values.chunks(8) {
             // Without a branch per value (vectorises): most chunks hold none.
-            let any = chunk
-                .iter()
-                .fold(false, |a, &v| a | (bin(v) == bins[0]) | (bin(v) == bins[1]));
+            let any = chunk.iter().fold(false, |a, &v| {
+                a | (fine_bin(v) == bins[0]) | (fine_bin(v) == bins[1])
+            });
             if !any {
                 continue;
             }
             for &v in chunk {
-                if bin(v) == bins[0] {
+                if fine_bin(v) == bins[0] {
                     g0.push(v.to_bits());
-                } else if bin(v) == bins[1] {
+                } else if fine_bin(v) == bins[1] {
                     g1.push(v.to_bits());
                 }
             }
