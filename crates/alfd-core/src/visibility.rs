@@ -4,7 +4,7 @@
 //! views per point. Invariant: every interval holds 0 (the current camera).
 
 use super::depth::{DepthImage, Intrinsics, TrackAxis, TrackGeometry, HORIZON_EPS};
-use super::inverse::{fill_grid, DepthRange, InvGrid, SKY};
+use super::inverse::{fill_grid, DepthRange, InvGrid, INVALID, SKY};
 
 /// Interior phases of the in-between view when none is configured.
 pub const DEFAULT_PHASES: usize = 15;
@@ -192,121 +192,177 @@ impl TrackRays {
 /// Reusable buffers of the per-line sweep.
 #[derive(Debug, Clone, Default)]
 pub struct LineScratch {
-    /// `(X, Y)` of the run's surface samples, increasing `X`.
-    pts: Vec<(f64, f64)>,
+    /// `X` and `Y` of the run's surface samples, increasing `X`.
+    xs: Vec<f64>,
+    ys: Vec<f64>,
     idx: Vec<usize>,
+    /// The along-track frustum of each, camera positions in metres.
+    frustum_lo_m: Vec<f64>,
+    frustum_hi_m: Vec<f64>,
     ahead: Vec<f64>,
     behind: Vec<f64>,
-    stack: Vec<(f64, f64)>,
+    hull: Hull,
 }
 
-/// For points sorted by increasing `X` (`pts[i] = (X, Y)`), the camera
+/// Points per block of [`sweep`]'s floor.
+const FLOOR_BLOCK: usize = 32;
+
+/// Room for [`sweep`]'s hull; contents are the sweep's own.
+#[derive(Debug, Clone, Default)]
+struct Hull {
+    /// The hull's vertices (`X`, `Y`) as a stack: the sweep keeps its length.
+    x: Vec<f64>,
+    y: Vec<f64>,
+    /// Per block of points, at most the lowest lifted `Y` of the points swept
+    /// after any of them.
+    floor: Vec<f64>,
+}
+
+/// For points sorted by increasing `X` (`(xs[i], ys[i]) = (X, Y)`), the camera
 /// position beyond which each is hidden (`+∞`: no point on that side rises
 /// above it): the tangent from the point (lifted by `margin` in `Y`) to the upper
-/// hull of the points after it (`behind = false`), or, mirrored (`X → −X`),
-/// before it (`behind = true`, reported as the magnitude).
-fn sweep(
-    pts: &[(f64, f64)],
-    behind: bool,
+/// hull of the points after it (`BEHIND = false`), or, mirrored (`X → −X`),
+/// before it (`BEHIND = true`, reported as the magnitude).
+///
+/// A point no later point's lifted self lies under (`Y ≤` the `floor` of the
+/// points swept after it) is never anyone's tangent with `dy > 0`, so it stays
+/// off the hull: on open ground, whose depth noise is under the margin, the
+/// hull holds only what rises above it. Its own tangent is then found by the
+/// walk over the hull as it is (the chain is strictly concave, so the slopes
+/// from a point before it rise, then fall).
+fn sweep<const BEHIND: bool>(
+    xs: &[f64],
+    ys: &[f64],
     margin: f64,
-    stack: &mut Vec<(f64, f64)>,
+    hull: &mut Hull,
     out: &mut Vec<f64>,
 ) {
-    let n = pts.len();
+    let n = xs.len().min(ys.len());
     out.clear();
     out.resize(n, f64::INFINITY);
-    stack.clear();
-    let sign = if behind { -1.0 } else { 1.0 };
+    let lift = 1.0 + margin;
+    // A lower bound of the floor is as good (more points stay on the hull):
+    // per block of points, the least lifted `Y` of the block and of every block
+    // swept after it, found without a chain of dependent minima per point.
+    let blocks = n.div_ceil(FLOOR_BLOCK);
+    hull.floor.clear();
+    hull.floor.extend(ys.chunks(FLOOR_BLOCK).map(|c| {
+        let m = c
+            .iter()
+            .fold(f64::INFINITY, |m, &y| if y < m { y } else { m });
+        m * lift
+    }));
+    let floor = &mut hull.floor[..blocks];
+    if BEHIND {
+        for b in (0..blocks.saturating_sub(1)).rev() {
+            floor[b] = floor[b].min(floor[b + 1]);
+        }
+    } else {
+        for b in 1..blocks {
+            floor[b] = floor[b].min(floor[b - 1]);
+        }
+    }
+    // The hull as a stack in two fixed slices and a length: no capacity check
+    // per push, and `X`, `Y` loaded apart (a pair written one iteration and
+    // read back the next stalls on store forwarding).
+    if hull.x.len() < n {
+        hull.x.resize(n, 0.0);
+        hull.y.resize(n, 0.0);
+    }
+    let (hx, hy) = (&mut hull.x[..n], &mut hull.y[..n]);
+    let mut len = 0usize;
+    let sign = if BEHIND { -1.0 } else { 1.0 };
     // `slope(P, a) ≤ slope(P, b)` for `a`, `b` beyond `P`, without dividing.
-    #[inline]
+    #[inline(always)]
     fn not_above(p: (f64, f64), a: (f64, f64), b: (f64, f64)) -> bool {
         (a.1 - p.1) * (b.0 - p.0) <= (b.1 - p.1) * (a.0 - p.0)
     }
     // The highest `Y` of the points beyond `p` (all swept so far).
     let mut y_beyond = f64::NEG_INFINITY;
-    // The top of the stack, also kept here: reading back the point pushed one
-    // iteration before (two 8-byte stores, one 16-byte load) stalls on store
-    // forwarding, which was the sweep's largest cost.
+    // The top of the stack, also kept in registers.
     let mut last = (0.0, 0.0);
     for k in 0..n {
-        let i = if behind { k } else { n - 1 - k };
-        let p = (sign * pts[i].0, pts[i].1);
+        let i = if BEHIND { k } else { n - 1 - k };
+        let p = (sign * xs[i], ys[i]);
+        let on_hull = p.1 > floor[i / FLOOR_BLOCK];
         // The hull of the points beyond `p`, seen from `p`: what lies on or
         // under the chord from `p` to the next vertex is no one's tangent.
-        while stack.len() >= 2 {
-            let b = stack[stack.len() - 2];
+        while on_hull && len >= 2 {
+            let b = (hx[len - 2], hy[len - 2]);
             if not_above(p, last, b) {
-                stack.pop();
+                len -= 1;
                 last = b;
             } else {
                 break;
             }
         }
-        let pl = (p.0, p.1 * (1.0 + margin));
-        if pl.1 >= y_beyond {
-            // Nothing beyond rises above the lifted point, so no tangent has
-            // `dy > 0` and this side stays open (open ground, roofs): the
-            // walk below would find the same.
-            stack.push(p);
-            last = p;
-            y_beyond = y_beyond.max(p.1);
-            continue;
-        }
-        let tangent = if margin > 0.0 && stack.len() >= 2 {
-            // From the lifted point the tangent lies at or beyond the top:
-            // slopes along the chain rise, then fall. A small lift moves it a
-            // vertex or two: walk a few, then bisect the rest.
-            // Chain order: c = 0 is the top (nearest), stack index len−1−c.
-            let top = stack.len() - 1;
-            let at = |c: usize| if c == 0 { last } else { stack[top - c] };
-            let mut lo = 0usize;
-            while lo < top.min(4) && !not_above(pl, at(lo + 1), at(lo)) {
-                lo += 1;
-            }
-            if lo == 4 && lo < top {
-                let mut hi = top;
-                while lo < hi {
-                    let mid = (lo + hi) / 2;
-                    if not_above(pl, at(mid + 1), at(mid)) {
-                        hi = mid;
+        let pl = (p.0, p.1 * lift);
+        // Otherwise nothing beyond rises above the lifted point, so no tangent
+        // has `dy > 0` and this side stays open (open ground, roofs): the walk
+        // below would find the same. (`Y` is finite: no NaN to compare.)
+        if pl.1 < y_beyond {
+            let tangent = if (margin > 0.0 || !on_hull) && len >= 2 {
+                // From the lifted point (or one the hull was not popped for)
+                // the tangent lies at or beyond the top: slopes along the
+                // chain rise, then fall. A small lift moves it a vertex or
+                // two: walk a few, then bisect the rest.
+                // Chain order: c = 0 is the top (nearest), stack index top−c.
+                let top = len - 1;
+                let at = |c: usize| {
+                    if c == 0 {
+                        last
                     } else {
-                        lo = mid + 1;
+                        (hx[top - c], hy[top - c])
+                    }
+                };
+                let mut lo = 0usize;
+                while lo < top.min(4) && !not_above(pl, at(lo + 1), at(lo)) {
+                    lo += 1;
+                }
+                if lo == 4 && lo < top {
+                    let mut hi = top;
+                    while lo < hi {
+                        let mid = (lo + hi) / 2;
+                        if not_above(pl, at(mid + 1), at(mid)) {
+                            hi = mid;
+                        } else {
+                            lo = mid + 1;
+                        }
                     }
                 }
-            }
-            Some(at(lo))
-        } else {
-            (!stack.is_empty()).then_some(last)
-        };
-        if let Some(q) = tangent {
-            let dy = q.1 - pl.1;
-            if dy > 0.0 {
-                out[i] = (q.0 - p.0).max(0.0) / dy;
+                Some(at(lo))
+            } else {
+                (len > 0).then_some(last)
+            };
+            if let Some(q) = tangent {
+                let dy = q.1 - pl.1;
+                if dy > 0.0 {
+                    out[i] = (q.0 - p.0).max(0.0) / dy;
+                }
             }
         }
-        stack.push(p);
-        last = p;
+        if on_hull {
+            hx[len] = p.0;
+            hy[len] = p.1;
+            len += 1;
+            last = p;
+        }
         y_beyond = y_beyond.max(p.1);
     }
 }
 
 /// Sweeps one run of samples (sorted by `X`) both ways and emits each interval.
-fn sweep_run(
-    rays: &TrackRays,
-    line: &[f32],
-    margin: f64,
-    s: &mut LineScratch,
-    emit: &mut impl FnMut(usize, Interval),
-) {
-    if s.pts.is_empty() {
+fn sweep_run(margin: f64, s: &mut LineScratch, emit: &mut impl FnMut(usize, Interval)) {
+    if s.xs.is_empty() {
         return;
     }
-    sweep(&s.pts, false, margin, &mut s.stack, &mut s.ahead);
-    sweep(&s.pts, true, margin, &mut s.stack, &mut s.behind);
+    sweep::<false>(&s.xs, &s.ys, margin, &mut s.hull, &mut s.ahead);
+    sweep::<true>(&s.xs, &s.ys, margin, &mut s.hull, &mut s.behind);
+    let (ahead, behind) = (&s.ahead[..], &s.behind[..]);
+    let (lo_m, hi_m) = (&s.frustum_lo_m[..], &s.frustum_hi_m[..]);
     for (k, &j) in s.idx.iter().enumerate() {
-        let d = 1.0 / line[j] as f64;
-        let (f_lo, f_hi) = (d * rays.f_lo[j], d * rays.f_hi[j]);
-        let (o_lo, o_hi) = (-s.behind[k], s.ahead[k]);
+        let (f_lo, f_hi) = (lo_m[k], hi_m[k]);
+        let (o_lo, o_hi) = (-behind[k], ahead[k]);
         let (from_m, from) = if o_lo > f_lo {
             (o_lo, End::Occluder)
         } else {
@@ -338,7 +394,6 @@ pub fn sweep_line(
     s: &mut LineScratch,
     mut emit: impl FnMut(usize, Interval),
 ) {
-    let n = line.len().min(rays.len());
     let margin = if margin_rel.is_finite() {
         margin_rel.max(0.0)
     } else {
@@ -347,16 +402,42 @@ pub fn sweep_line(
     // Below the line `X` grows with the pixel index, above it (mirrored) it
     // falls: each run is visited in increasing `X`.
     for order in [&rays.below, &rays.above] {
-        s.pts.clear();
-        s.idx.clear();
-        for &j in order.iter().filter(|&&j| j < n) {
-            let w = line[j];
-            if w > SKY && w.is_finite() {
-                s.pts.push((rays.x[j], w as f64 * rays.inv_g[j]));
-                s.idx.push(j);
-            }
+        // Every sample written, the count moved by the valid ones: no branch
+        // to mispredict at the edges of sky and invalid runs.
+        let m = order.len();
+        s.xs.resize(m, 0.0);
+        s.ys.resize(m, 0.0);
+        s.idx.resize(m, 0);
+        s.frustum_lo_m.resize(m, 0.0);
+        s.frustum_hi_m.resize(m, 0.0);
+        // Slices held apart, so that a store does not make the compiler load
+        // the vectors' pointers again.
+        let (xs, ys, idx) = (&mut s.xs[..m], &mut s.ys[..m], &mut s.idx[..m]);
+        let (lo_m, hi_m) = (&mut s.frustum_lo_m[..m], &mut s.frustum_hi_m[..m]);
+        let (ray_x, inv_g) = (&rays.x[..], &rays.inv_g[..]);
+        let (f_lo, f_hi) = (&rays.f_lo[..], &rays.f_hi[..]);
+        let mut c = 0;
+        for (k, &j) in order.iter().enumerate() {
+            // Outside the line (a ray table longer than the line): invalid.
+            let w = line.get(j).copied().unwrap_or(INVALID);
+            // `c <= k < m`: the same place as `[k]` but for the count.
+            let c_at = c.min(k);
+            xs[c_at] = ray_x[j];
+            ys[c_at] = w as f64 * inv_g[j];
+            idx[c_at] = j;
+            // Depth, metres (a branch-free loop keeps the divisions in flight).
+            let d = 1.0 / w as f64;
+            lo_m[c_at] = d * f_lo[j];
+            hi_m[c_at] = d * f_hi[j];
+            // Valid and not sky, `0 < w < ∞` (NaN fails both).
+            c += (w > SKY && w < f32::INFINITY) as usize;
         }
-        sweep_run(rays, line, margin, s, &mut emit);
+        s.xs.truncate(c);
+        s.ys.truncate(c);
+        s.idx.truncate(c);
+        s.frustum_lo_m.truncate(c);
+        s.frustum_hi_m.truncate(c);
+        sweep_run(margin, s, &mut emit);
     }
 }
 
@@ -678,6 +759,11 @@ impl LineRun {
             return;
         }
         self.done = true;
+        // Counted in locals (a store through `self` beside the pushes would
+        // be reloaded every sample), in the same order: the same minima.
+        let (mut samples, mut occluded_samples) = (self.samples, self.occluded_samples);
+        let (mut min_all, mut min_occ) = (self.min_all, self.min_occ);
+        let records = &mut self.occluded;
         for a in self.lines.clone() {
             let (mut surface, mut occluded) = (false, false);
             let counts = in_band.contains(&a);
@@ -688,24 +774,26 @@ impl LineRun {
                 &mut self.scratch,
                 |_, iv| {
                     surface = true;
-                    self.samples += 1;
+                    samples += 1;
                     let l = iv.length_m();
                     if counts {
-                        self.min_all = self.min_all.min(l);
+                        min_all = min_all.min(l);
                     }
                     if iv.occluded() {
                         occluded = true;
-                        self.occluded_samples += 1;
+                        occluded_samples += 1;
                         if counts {
-                            self.min_occ = self.min_occ.min(l);
+                            min_occ = min_occ.min(l);
                         }
-                        self.occluded.push((iv.from_m as f32, iv.to_m as f32));
+                        records.push((iv.from_m as f32, iv.to_m as f32));
                     }
                 },
             );
             self.surface_lines += surface as u64;
             self.occluded_lines += occluded as u64;
         }
+        (self.samples, self.occluded_samples) = (samples, occluded_samples);
+        (self.min_all, self.min_occ) = (min_all, min_occ);
     }
 }
 
@@ -795,18 +883,167 @@ pub fn visibility_of_image(
 mod tests {
     use super::*;
 
+    /// The sweep on `(X, Y)` pairs, either way.
+    fn sweep(pts: &[(f64, f64)], behind: bool, margin: f64, out: &mut Vec<f64>) {
+        let (xs, ys): (Vec<f64>, Vec<f64>) = pts.iter().copied().unzip();
+        let mut hull = Hull::default();
+        if behind {
+            super::sweep::<true>(&xs, &ys, margin, &mut hull, out);
+        } else {
+            super::sweep::<false>(&xs, &ys, margin, &mut hull, out);
+        }
+    }
+
+    /// The sweep as it was before the hull left out what never occludes: every
+    /// point pushed on a stack of pairs.
+    fn plain_sweep(
+        pts: &[(f64, f64)],
+        behind: bool,
+        margin: f64,
+        stack: &mut Vec<(f64, f64)>,
+        out: &mut Vec<f64>,
+    ) {
+        let n = pts.len();
+        out.clear();
+        out.resize(n, f64::INFINITY);
+        stack.clear();
+        let sign = if behind { -1.0 } else { 1.0 };
+        // `slope(P, a) ≤ slope(P, b)` for `a`, `b` beyond `P`, without dividing.
+        #[inline]
+        fn not_above(p: (f64, f64), a: (f64, f64), b: (f64, f64)) -> bool {
+            (a.1 - p.1) * (b.0 - p.0) <= (b.1 - p.1) * (a.0 - p.0)
+        }
+        // The highest `Y` of the points beyond `p` (all swept so far).
+        let mut y_beyond = f64::NEG_INFINITY;
+        // The top of the stack, also kept here: reading back the point pushed one
+        // iteration before (two 8-byte stores, one 16-byte load) stalls on store
+        // forwarding, which was the sweep's largest cost.
+        let mut last = (0.0, 0.0);
+        for k in 0..n {
+            let i = if behind { k } else { n - 1 - k };
+            let p = (sign * pts[i].0, pts[i].1);
+            // The hull of the points beyond `p`, seen from `p`: what lies on or
+            // under the chord from `p` to the next vertex is no one's tangent.
+            while stack.len() >= 2 {
+                let b = stack[stack.len() - 2];
+                if not_above(p, last, b) {
+                    stack.pop();
+                    last = b;
+                } else {
+                    break;
+                }
+            }
+            let pl = (p.0, p.1 * (1.0 + margin));
+            if pl.1 >= y_beyond {
+                // Nothing beyond rises above the lifted point, so no tangent has
+                // `dy > 0` and this side stays open (open ground, roofs): the
+                // walk below would find the same.
+                stack.push(p);
+                last = p;
+                y_beyond = y_beyond.max(p.1);
+                continue;
+            }
+            let tangent = if margin > 0.0 && stack.len() >= 2 {
+                // From the lifted point the tangent lies at or beyond the top:
+                // slopes along the chain rise, then fall. A small lift moves it a
+                // vertex or two: walk a few, then bisect the rest.
+                // Chain order: c = 0 is the top (nearest), stack index len−1−c.
+                let top = stack.len() - 1;
+                let at = |c: usize| if c == 0 { last } else { stack[top - c] };
+                let mut lo = 0usize;
+                while lo < top.min(4) && !not_above(pl, at(lo + 1), at(lo)) {
+                    lo += 1;
+                }
+                if lo == 4 && lo < top {
+                    let mut hi = top;
+                    while lo < hi {
+                        let mid = (lo + hi) / 2;
+                        if not_above(pl, at(mid + 1), at(mid)) {
+                            hi = mid;
+                        } else {
+                            lo = mid + 1;
+                        }
+                    }
+                }
+                Some(at(lo))
+            } else {
+                (!stack.is_empty()).then_some(last)
+            };
+            if let Some(q) = tangent {
+                let dy = q.1 - pl.1;
+                if dy > 0.0 {
+                    out[i] = (q.0 - p.0).max(0.0) / dy;
+                }
+            }
+            stack.push(p);
+            last = p;
+            y_beyond = y_beyond.max(p.1);
+        }
+    }
+
+    #[test]
+    fn the_hull_without_the_floor_points_gives_the_plain_sweeps_bits() {
+        // Profiles as depth lines give them: open ground with noise under and
+        // over the margin, plateaus (quantised depth), steps up and down,
+        // posts, and a ramp; both ways, with and without a margin.
+        let mut seed = 7u64;
+        let mut next = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for case in 0..400 {
+            let n = 1 + (next() * 300.0) as usize;
+            let noise = [0.0, 1e-5, 1e-3, 0.05][case % 4];
+            let quantum = [0.0, 1e-3][case / 4 % 2];
+            let mut x = -2.0 + next();
+            let mut level = 1.0;
+            let (mut xs, mut ys) = (Vec::new(), Vec::new());
+            for _ in 0..n {
+                x += 0.001 + next() * 0.05;
+                let u = next();
+                if u < 0.03 {
+                    level = 1.0 + next() * 1.5;
+                } else if u < 0.06 {
+                    level = 1.0;
+                }
+                let mut y = level + (next() - 0.5) * noise + (case % 3) as f64 * 0.01 * x;
+                if quantum > 0.0 {
+                    y = (y / quantum).round() * quantum;
+                }
+                xs.push(x);
+                ys.push(y.max(1e-3));
+            }
+            let pts: Vec<(f64, f64)> = xs.iter().copied().zip(ys.iter().copied()).collect();
+            for margin in [0.0, 1e-4, 1e-3, 0.2] {
+                for behind in [false, true] {
+                    let (mut want, mut got) = (Vec::new(), Vec::new());
+                    plain_sweep(&pts, behind, margin, &mut Vec::new(), &mut want);
+                    sweep(&pts, behind, margin, &mut got);
+                    let bits = |v: &[f64]| v.iter().map(|c| c.to_bits()).collect::<Vec<_>>();
+                    assert_eq!(
+                        bits(&got),
+                        bits(&want),
+                        "case {case} margin {margin} behind {behind}"
+                    );
+                }
+            }
+        }
+    }
+
     #[test]
     fn sweep_finds_the_highest_slope_ahead() {
         // Flat, then a step up: the first point is hidden beyond the tangent
         // over the step's top, (3 − 0)/(2 − 1) = 3.
         let pts = [(0.0, 1.0), (1.0, 1.0), (3.0, 2.0), (4.0, 2.0)];
         let mut out = Vec::new();
-        sweep(&pts, false, 0.0, &mut Vec::new(), &mut out);
+        sweep(&pts, false, 0.0, &mut out);
         assert_eq!(out[0], 3.0);
         assert_eq!(out[1], 2.0);
         assert!(out[2].is_infinite() && out[3].is_infinite());
         // Behind: nothing before a point rises above it.
-        sweep(&pts, true, 0.0, &mut Vec::new(), &mut out);
+        sweep(&pts, true, 0.0, &mut out);
         assert!(out.iter().all(|c| c.is_infinite()));
     }
 
@@ -817,7 +1054,7 @@ mod tests {
         for &margin in margins {
             for behind in [false, true] {
                 let mut out = Vec::new();
-                sweep(&pts, behind, margin, &mut Vec::new(), &mut out);
+                sweep(&pts, behind, margin, &mut out);
                 for i in 0..x.len() {
                     let yl = y[i] * (1.0 + margin);
                     let others = if behind { 0..i } else { i + 1..x.len() };
