@@ -87,6 +87,77 @@ fn ray_box_hits_match_hand_computation() {
     .is_none());
 }
 
+/// The slab test as first written: axis by axis, stopping at the first empty
+/// overlap.
+fn ray_box_stepwise(
+    min: [f64; 3],
+    max: [f64; 3],
+    o: [f64; 3],
+    d: [f64; 3],
+) -> Option<(f64, usize)> {
+    let (mut t0, mut t1) = (f64::NEG_INFINITY, f64::INFINITY);
+    let mut axis = 0;
+    for k in 0..3 {
+        if d[k] == 0.0 {
+            if o[k] < min[k] || o[k] > max[k] {
+                return None;
+            }
+            continue;
+        }
+        let (a, b) = ((min[k] - o[k]) / d[k], (max[k] - o[k]) / d[k]);
+        let (a, b) = if a < b { (a, b) } else { (b, a) };
+        if a > t0 {
+            t0 = a;
+            axis = k;
+        }
+        t1 = t1.min(b);
+        if t0 > t1 {
+            return None;
+        }
+    }
+    (t0 > 0.0).then_some((t0, axis))
+}
+
+#[test]
+fn the_branch_free_slab_test_gives_the_stepwise_bits() {
+    // Rays from inside, outside and on the faces, along and across the axes
+    // (zero components), grazing edges, and at boxes of zero extent.
+    let mut s = 3u64;
+    let mut next = || {
+        s = s
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (s >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let mut hits = 0;
+    for case in 0..200_000 {
+        let pick = |u: f64, choices: &[f64]| choices[(u * choices.len() as f64) as usize];
+        let mut min = [0.0; 3];
+        let mut max = [0.0; 3];
+        let (mut o, mut d) = ([0.0; 3], [0.0; 3]);
+        for k in 0..3 {
+            min[k] = pick(next(), &[-5.0, -1.0, 0.0, 2.5]) + next() * (case % 2) as f64;
+            max[k] = min[k] + pick(next(), &[0.0, 1.0, 10.0]);
+            o[k] = pick(
+                next(),
+                &[-20.0, min[k], max[k], 0.5 * (min[k] + max[k]), 20.0],
+            ) + (next() - 0.5) * 30.0 * f64::from(u8::from(case % 3 == 0));
+            // Mostly aimed at a point in or near the box.
+            let aim = min[k] + (next() * 1.4 - 0.2) * (max[k] - min[k]) - o[k];
+            d[k] = pick(next(), &[0.0, 1e-300, next() - 0.5, aim, aim, aim, aim]);
+        }
+        let (want, got) = (ray_box_stepwise(min, max, o, d), ray_box(min, max, o, d));
+        assert_eq!(
+            got.map(|(t, a)| (t.to_bits(), a)),
+            want.map(|(t, a)| (t.to_bits(), a)),
+            "box {min:?}..{max:?} from {o:?} along {d:?}"
+        );
+        hits += want.is_some() as usize;
+    }
+    // Both outcomes are exercised.
+    assert!(hits > 20_000 && hits < 180_000, "{hits} hits");
+}
+
 #[test]
 fn ray_ellipsoid_hits_match_hand_computation() {
     // Sphere of radius 2 at (0,0,10), ray straight down from 40: t = 28.

@@ -281,25 +281,30 @@ pub struct Hit<'a> {
 /// Entry parameter and the axis of the entered face of a ray into a box
 /// (slab method); `None` if it misses or starts inside.
 pub fn ray_box(min: [f64; 3], max: [f64; 3], o: [f64; 3], d: [f64; 3]) -> Option<(f64, usize)> {
+    // Every axis's slab computed, then combined without a branch per axis: a
+    // ray misses most boxes it is tested against, at an axis no predictor
+    // guesses. The same bits as stopping at the first empty overlap (the
+    // entry only grows and the exit only falls, so one empty stays empty).
     let (mut t0, mut t1) = (f64::NEG_INFINITY, f64::INFINITY);
     let mut axis = 0;
+    let mut outside = false;
     for k in 0..3 {
-        if d[k] == 0.0 {
-            if o[k] < min[k] || o[k] > max[k] {
-                return None;
-            }
-            continue;
-        }
         let (a, b) = ((min[k] - o[k]) / d[k], (max[k] - o[k]) / d[k]);
         let (a, b) = if a < b { (a, b) } else { (b, a) };
-        if a > t0 {
-            t0 = a;
-            axis = k;
-        }
+        // Parallel to the slab: inside it or never in the box.
+        let flat = d[k] == 0.0;
+        outside |= flat & ((o[k] < min[k]) | (o[k] > max[k]));
+        let (a, b) = if flat {
+            (f64::NEG_INFINITY, f64::INFINITY)
+        } else {
+            (a, b)
+        };
+        axis = if a > t0 { k } else { axis };
+        t0 = if a > t0 { a } else { t0 };
         t1 = t1.min(b);
-        if t0 > t1 {
-            return None;
-        }
+    }
+    if outside || t0 > t1 {
+        return None;
     }
     (t0 > 0.0).then_some((t0, axis))
 }
