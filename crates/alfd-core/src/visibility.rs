@@ -420,7 +420,8 @@ pub fn sweep_line(
         for (k, &j) in order.iter().enumerate() {
             // Outside the line (a ray table longer than the line): invalid.
             let w = line.get(j).copied().unwrap_or(INVALID);
-            // `c <= k < m`: the same place as `[k]` but for the count.
+            // `c <= k` always, so the `min` changes nothing: it bounds the
+            // index by `k < m` for the compiler.
             let c_at = c.min(k);
             xs[c_at] = ray_x[j];
             ys[c_at] = w as f64 * inv_g[j];
