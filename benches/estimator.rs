@@ -3,6 +3,7 @@
 //! sum of its u16 values). `scripts/bench-ratios.py` prints every figure as a
 //! ratio to that baseline, since this machine is shared and noisy.
 
+use alfd::core::closedloop::{pair, unseen_fraction, views_at_risk, DepthSnapshot, View};
 use alfd::core::estimate::{
     disparity_span_per_m, parallax_in_frame, visibility_step, Estimator, InFrameSpans,
 };
@@ -37,6 +38,38 @@ fn frame(w: usize, h: usize) -> (DepthImage, Intrinsics, f64) {
         intr,
         pose.pitch_rad,
     )
+}
+
+/// The closed loop's view of the `buildings` frame with the camera moved
+/// `dx_m` along track: its kept depth (about 4800 samples) and pose, in the
+/// world frame (x along track, z up; OpenCV camera axes).
+fn closed_loop_view(w: usize, h: usize, dx_m: f64) -> View {
+    let (_, world, mut pose) = reference_scenes()
+        .into_iter()
+        .find(|s| s.0 == "buildings")
+        .unwrap();
+    pose.position_m[0] += dx_m;
+    let intr = Intrinsics::from_hfov_deg(w, h, 69.0, None).unwrap();
+    let img = DepthImage::new(
+        w,
+        h,
+        DepthData::Z16 {
+            data: to_z16(&world.render_depth(&pose, &intr), 0.001),
+            scale_m: 0.001,
+        },
+    )
+    .unwrap();
+    let (s, c) = pose.pitch_rad.sin_cos();
+    View {
+        depth: DepthSnapshot::kept(&img, &intr),
+        // Columns: image x along track, image y across (world −y), optical axis.
+        cam_to_ned: glam::DMat3::from_cols(
+            glam::DVec3::new(c, 0.0, s),
+            glam::DVec3::new(0.0, -1.0, 0.0),
+            glam::DVec3::new(s, 0.0, -c),
+        ),
+        pos_ned_m: glam::DVec3::from(pose.position_m),
+    }
 }
 
 fn bench(c: &mut Criterion) {
@@ -244,6 +277,32 @@ fn bench(c: &mut Criterion) {
             &params.depth_range,
             &mut sgrid,
         );
+        // The closed loop per frame (`[trigger] closed_loop`): keeping the
+        // frame, then its three measures against a capture 0.5 m behind
+        // (views per point: one earlier capture 1 m before that, k = 2).
+        let (earlier, capture) = (closed_loop_view(w, h, -1.5), closed_loop_view(w, h, -0.5));
+        let (mid, frame_view) = (closed_loop_view(w, h, -0.25), closed_loop_view(w, h, 0.0));
+        g.bench_function("closed_loop_keep_frame", |b| {
+            b.iter(|| DepthSnapshot::kept(black_box(&img), &intr))
+        });
+        g.bench_function("closed_loop_parallax_pair", |b| {
+            b.iter(|| pair(black_box(&capture), &frame_view))
+        });
+        g.bench_function("closed_loop_unseen_fraction", |b| {
+            b.iter(|| unseen_fraction(black_box(&mid), &capture, &frame_view))
+        });
+        let ahead = glam::DVec3::new(10.0 / 30.0, 0.0, 0.0);
+        g.bench_function("closed_loop_views_at_risk", |b| {
+            b.iter(|| {
+                views_at_risk(
+                    black_box(&capture),
+                    std::slice::from_ref(&earlier),
+                    2,
+                    &frame_view,
+                    ahead,
+                )
+            })
+        });
         g.bench_function("stage_score", |b| {
             b.iter(|| {
                 score::score(

@@ -467,6 +467,8 @@ pub struct SceneResult {
     pub runs: Vec<[MethodRun; 2]>,
     /// The quality model at its own spacing, then [`EQUAL_TO_QUALITY`] scaled to its count.
     pub quality_equal: Vec<EqualRun>,
+    /// The quality model as flown: open loop, then with the closed loop on.
+    pub flown: Vec<FlownRun>,
     pub elapsed_s: f64,
     pub render_s: f64,
     /// Wall time of each stage after rendering (s), in order: the sweeps,
@@ -791,6 +793,23 @@ pub struct GuaranteeRun {
     /// The interval bound's scale and captures.
     pub interval_scale: f64,
     pub interval_captures: usize,
+}
+
+/// The quality model flown as the daemon flies it (scale 1, no search):
+/// open loop, and with `[trigger] closed_loop` on, judged by the truth.
+#[derive(Debug, Clone, Default)]
+pub struct FlownRun {
+    /// `open loop` or `closed loop`.
+    pub mode: &'static str,
+    pub captures: Vec<usize>,
+    pub geo: GeoStats,
+    pub min_views: Option<usize>,
+    pub meets: bool,
+    /// Per segment, the captures inside it (`x0 ≤ x < x1`; the last segment
+    /// also holds the line's end).
+    pub segment_captures: Vec<usize>,
+    /// The closed loop's own counts (`None` for the open loop).
+    pub closed: Option<plan::ClosedLoopFlight>,
 }
 
 /// Step of the confirmation on every in-between view (1.2 %).
@@ -1487,6 +1506,59 @@ pub fn evaluate_scene(
     } else {
         Guarantee::default()
     };
+    // The quality model as the daemon flies it, open loop and with the closed
+    // loop on (its views-per-point measure holds what one frame's depth cannot
+    // see leave: the underside of a crown), each judged by the truth.
+    pb.set_message(format!("{}: the closed loop as flown", scene.name));
+    let flown: Vec<FlownRun> = {
+        let q = quality_params().quality;
+        let cl_targets = crate::core::closedloop::ClosedLoopTargets {
+            parallax_px: q.parallax_px,
+            unseen_fraction_max: q.unseen_fraction_max,
+            views_per_point_min: q.views_per_point_min,
+        };
+        let closed = plan::closed_loop_captures(
+            &visibility_spacing,
+            &kept,
+            res.view_step_m,
+            s.speed_mps,
+            &cl_targets,
+        );
+        let open = plan::captures(&visibility_spacing, res.view_step_m, s.speed_mps, 1.0);
+        let mut judge = IntervalTruth::new(&truth, &views, true);
+        [
+            ("open loop", open, None),
+            ("closed loop", closed.captures.clone(), Some(closed)),
+        ]
+        .into_iter()
+        .map(|(mode, caps, closed)| {
+            let geo = GeoStats::of(judge.plan_geo(&caps).iter());
+            let caps_m: Vec<f64> = caps.iter().map(|&c| xs[c]).collect();
+            let k = targets.views_per_point_min;
+            let mv = min_views(&all_intervals, &caps_m, line, k);
+            let last = segments.len().saturating_sub(1);
+            let segment_captures = segments
+                .iter()
+                .enumerate()
+                .map(|(i, sg)| {
+                    caps_m
+                        .iter()
+                        .filter(|&&x| x >= sg.x0_m && (x < sg.x1_m || (i == last && x <= sg.x1_m)))
+                        .count()
+                })
+                .collect();
+            FlownRun {
+                mode,
+                meets: geo.meets(&targets) && mv.is_none_or(|v| v >= k as usize),
+                captures: caps,
+                geo,
+                min_views: mv,
+                segment_captures,
+                closed,
+            }
+        })
+        .collect()
+    };
     stage(2);
     // The quality model at its own spacing, and the others scaled to its count (issue 13's
     // equal-capture comparison): same scorer, so intervals already scored are reused.
@@ -1573,6 +1645,7 @@ pub fn evaluate_scene(
         guarantee,
         runs,
         quality_equal,
+        flown,
         elapsed_s: start.elapsed().as_secs_f64(),
         render_s,
         stage_s,

@@ -225,7 +225,28 @@ pub fn scene_json(r: &SceneResult) -> Value {
             })
         })
         .collect();
+    let flown: Vec<Value> = r
+        .flown
+        .iter()
+        .map(|run| {
+            json!({
+                "mode": run.mode,
+                "captures": run.captures.len(),
+                "unseen_worst": num(run.geo.unseen_worst),
+                "parallax_worst_px": onum(run.geo.parallax_worst_px),
+                "min_views": run.min_views,
+                "meets": run.meets,
+                "segment_captures": run.segment_captures,
+                "closed_loop": run.closed.as_ref().map(|c| json!({
+                    "captures_by_bound": c.by_bound.iter().map(|(b, k)| (b.to_string(), json!(k))).collect::<Map<String, Value>>(),
+                    "views_at_risk": c.views_at_risk,
+                    "views_lost": c.views_lost,
+                })),
+            })
+        })
+        .collect();
     json!({
+        "quality_as_flown": flown,
         "quality_at_equal_captures": quality_equal,
         "colmap": Value::Object(colmap),
         "guarantee": {
@@ -528,6 +549,78 @@ pub fn markdown(results: &[SceneResult]) -> String {
                 )),
             );
         }
+    }
+
+    let _ = writeln!(
+        s,
+        "\n### The quality model as flown: open loop, and with the closed loop\n"
+    );
+    let _ = writeln!(s, "The quality model at scale 1 (what the daemon flies, no search), open loop, and with `[trigger] closed_loop = true`: each view's kept depth (about 4800 samples) measured against the last capture, the tighter of the two spacings. The closed loop's views-per-point measure: the last capture's points in the middle half across track that fewer than k − 1 earlier captures see, and of those the ones the frame still sees but a camera one view step ahead would not (walked through this frame's depth, behind a surface counts as solid): any such point captures now. Judged by the truth on every in-between view; fewest views as the data-volume table. Closed-loop captures: how many the closed loop set, by bound; views points lost: the last capture's samples short of k that the capturing frame no longer saw (too late for any capture), summed over captures.\n");
+    let _ = writeln!(s, "| scene | mode | captures | / fixed | / oracle | worst unseen | worst parallax (px) | fewest views | meets | closed-loop captures by bound | views points lost |");
+    let _ = writeln!(s, "|---|---|---:|---:|---:|---:|---:|---:|---|---|---:|");
+    for r in results {
+        let g = &r.guarantee;
+        for run in &r.flown {
+            let n = run.captures.len();
+            let ratio = |d: Option<usize>| {
+                d.map_or("–".into(), |d| format!("{:.2}", n as f64 / d as f64))
+            };
+            let (bounds, points) = match &run.closed {
+                Some(c) => (
+                    if c.by_bound.is_empty() {
+                        "none".to_string()
+                    } else {
+                        c.by_bound
+                            .iter()
+                            .map(|(b, k)| format!("{b} {k}"))
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    },
+                    c.views_lost.to_string(),
+                ),
+                None => ("–".to_string(), "–".to_string()),
+            };
+            let _ = writeln!(
+                s,
+                "| {} | {} | {} | {} | {} | {:.4} | {} | {} | {} | {} | {} |",
+                r.name,
+                run.mode,
+                n,
+                ratio(g.fixed_captures),
+                ratio(g.oracle_captures),
+                run.geo.unseen_worst,
+                f(run.geo.parallax_worst_px, 2),
+                run.min_views.map_or("–".into(), |v| v.to_string()),
+                if run.meets { "yes" } else { "no" },
+                bounds,
+                points,
+            );
+        }
+    }
+    let _ = writeln!(s, "\nPer segment, captures inside it as flown, open / closed loop, and the segment's target spacing by the truth (m):\n");
+    for r in results {
+        let (Some(o), Some(c)) = (
+            r.flown.iter().find(|f| f.mode == "open loop"),
+            r.flown.iter().find(|f| f.mode == "closed loop"),
+        ) else {
+            continue;
+        };
+        let line: Vec<String> = r
+            .segments
+            .iter()
+            .enumerate()
+            .map(|(i, seg)| {
+                format!(
+                    "{:.1} – {:.1} m: {} / {} ({})",
+                    seg.x0_m,
+                    seg.x1_m,
+                    o.segment_captures[i],
+                    c.segment_captures[i],
+                    bound(seg.truth.target_m, seg.truth.target_at_least),
+                )
+            })
+            .collect();
+        let _ = writeln!(s, "- {}: {}", r.name, line.join("; "));
     }
 
     let _ = writeln!(s, "\n### At equal captures: the worst segment\n");
