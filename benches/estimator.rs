@@ -3,7 +3,7 @@
 //! sum of its u16 values). `scripts/bench-ratios.py` prints every figure as a
 //! ratio to that baseline, since this machine is shared and noisy.
 
-use alfd::core::closedloop::{pair, unseen_fraction, views_at_risk, DepthSnapshot, View};
+use alfd::core::closedloop::{pair, unseen_fraction, DepthSnapshot, View};
 use alfd::core::estimate::{
     disparity_span_per_m, parallax_in_frame, visibility_step, Estimator, InFrameSpans,
 };
@@ -278,9 +278,8 @@ fn bench(c: &mut Criterion) {
             &mut sgrid,
         );
         // The closed loop per frame (`[trigger] closed_loop`): keeping the
-        // frame, then its three measures against a capture 0.5 m behind
-        // (views per point: one earlier capture 1 m before that, k = 2).
-        let (earlier, capture) = (closed_loop_view(w, h, -1.5), closed_loop_view(w, h, -0.5));
+        // frame, then its two measures against a capture 0.5 m behind.
+        let capture = closed_loop_view(w, h, -0.5);
         let (mid, frame_view) = (closed_loop_view(w, h, -0.25), closed_loop_view(w, h, 0.0));
         g.bench_function("closed_loop_keep_frame", |b| {
             b.iter(|| DepthSnapshot::kept(black_box(&img), &intr))
@@ -290,18 +289,6 @@ fn bench(c: &mut Criterion) {
         });
         g.bench_function("closed_loop_unseen_fraction", |b| {
             b.iter(|| unseen_fraction(black_box(&mid), &capture, &frame_view))
-        });
-        let ahead = glam::DVec3::new(10.0 / 30.0, 0.0, 0.0);
-        g.bench_function("closed_loop_views_at_risk", |b| {
-            b.iter(|| {
-                views_at_risk(
-                    black_box(&capture),
-                    std::slice::from_ref(&earlier),
-                    2,
-                    &frame_view,
-                    ahead,
-                )
-            })
         });
         g.bench_function("stage_score", |b| {
             b.iter(|| {

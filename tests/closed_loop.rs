@@ -98,18 +98,15 @@ fn the_loop_stops_at_the_parallax_target() {
     let s = scene("roof");
     let (w, h) = (160, 120);
     let x0 = s.survey.start_x_m + 10.0;
-    // Parallax alone (the roof's views bound is far longer, but not tested here).
     let targets = ClosedLoopTargets {
         parallax_px: Some(2.0),
         unseen_fraction_max: 0.002,
-        views_per_point_min: 1,
     };
     let mut cl = ClosedLoop::default();
     let (a, _) = views(&s, x0, w, h, Sampling::Step(2));
     let step_m = 0.1;
-    let ahead = DVec3::new(step_m, 0.0, 0.0);
     assert!(
-        cl.on_frame(a.clone(), 0.0, ahead, &targets).is_none(),
+        cl.on_frame(a.clone(), 0.0, step_m, &targets).is_none(),
         "no capture yet"
     );
     cl.on_capture(a.clone(), 0.0);
@@ -117,7 +114,7 @@ fn the_loop_stops_at_the_parallax_target() {
     for k in 1..200 {
         let d = k as f64 * step_m;
         let (v, _) = views(&s, x0 + d, w, h, Sampling::Step(2));
-        let m = cl.on_frame(v.clone(), d, ahead, &targets).unwrap();
+        let m = cl.on_frame(v.clone(), d, step_m, &targets).unwrap();
         assert!((m.distance_m - d).abs() < 1e-12);
         if m.spacing_m.is_some_and(|sp| d + step_m > sp) {
             stop = Some((d, m));
@@ -282,113 +279,4 @@ fn kept_depth_raises_no_false_alarm() {
         }
         eprintln!("{name:<10} kept: {pairs} intervals, worst unseen by the loop {worst:.5}, {missed} over the target by the truth and not by the loop");
     }
-}
-
-/// What one frame says about one point one frame ahead, against the truth.
-#[derive(Debug, Default)]
-struct AheadCounts {
-    /// Points the truth loses within the frames tried.
-    lost: usize,
-    /// Of those, flagged by a frame that still saw them (a capture there
-    /// holds them).
-    in_time: usize,
-    /// Points flagged more than two frames before the truth loses them (a
-    /// capture earlier than needed).
-    early: usize,
-    flagged: usize,
-}
-
-/// Views per point in the closed loop (`View::remaining_m`): a capture at
-/// `x0` on `name`, frames every `step_m` after it, each kept as the daemon
-/// keeps it, and each of the capture's samples in the middle half across
-/// track. A frame flags a point it sees that it will lose within one frame's
-/// travel (out of frame, or behind what the frame shows), which is when the
-/// trigger captures. Against the truth's end of the point's visibility (exact
-/// ray casting): the first frame that flags it is in time when the truth
-/// still sees the point there, early when more than two frames before.
-fn ahead_against_truth(name: &str, x0: f64, step_m: f64, frames: usize) -> AheadCounts {
-    let s = scene(name);
-    let (w, h) = (s.survey.width, s.survey.height);
-    let g = geometry(&s, w, h);
-    let truth = Truth::new(&s, g);
-    let (capture, tc) = views(&s, x0, w, h, Sampling::Kept);
-    let ahead = DVec3::new(step_m, 0.0, 0.0);
-    let frames: Vec<View> = (0..frames)
-        .map(|j| views(&s, x0 + j as f64 * step_m, w, h, Sampling::Kept).0)
-        .collect();
-    let window_m = (frames.len() - 1) as f64 * step_m;
-    let step = capture.depth.step;
-    let mut out = AheadCounts::default();
-    for r in (h / 4..h - h / 4).filter(|r| r % step == 0) {
-        for i in (0..w).step_by(step) {
-            let d = tc.depth_m[r * w + i] as f64;
-            if !(d.is_finite() && d > 0.0) {
-                continue;
-            }
-            let pw = truth.point(x0, i, r, d);
-            // World (x forward, y left, z up) → NED.
-            let p = DVec3::new(pw[0], -pw[1], -pw[2]);
-            let runs = truth.visibility(pw, x0, step_m, 8.0 * s.survey.altitude_m);
-            let Some(end_m) = runs
-                .iter()
-                .find(|(a, b)| *a <= x0 + 1e-9 && x0 <= *b + 1e-9)
-                .map(|(_, b)| b - x0)
-            else {
-                continue;
-            };
-            // The trigger's rule: capture at the first frame that will lose
-            // the point within one frame's travel.
-            let flag = frames.iter().enumerate().find_map(|(j, f)| {
-                f.remaining_m(p, ahead)
-                    .is_some_and(|r| r < step_m)
-                    .then_some(j as f64 * step_m)
-            });
-            if end_m < window_m {
-                out.lost += 1;
-                out.in_time += flag.is_some_and(|at| at <= end_m + 1e-9) as usize;
-            }
-            if let Some(at) = flag {
-                out.flagged += 1;
-                out.early += (at + 2.0 * step_m < end_m) as usize;
-            }
-        }
-    }
-    out
-}
-
-/// Under a crown (`orchard`, the held-out segments where views per point
-/// binds and one frame's sweep reads a crown as a column), and on box worlds.
-/// Set before the first run: at least 95 % of the points the truth loses
-/// within 1.2 m flagged in time, at most 10 % of the flagged ones early.
-/// Measured: in time 68–96 % (not met; printed, not asserted), early 0 %
-/// (asserted). What is missed is below the depth map's resolution: a ground
-/// point under a crown's rim, 42 m away, lost when the ray meets the crown
-/// 5.5 m before it, is 0.05 px from the crown's silhouette in the frame, and
-/// one pixel of that relative motion is 0.9 m of travel at 200 × 150; a wall
-/// point seen edge-on is lost when the camera crosses the wall's plane, its
-/// occluder (the wall itself) within the seen tolerance. docs/eval.md.
-#[test]
-fn the_loops_look_ahead_flags_no_point_early() {
-    let mut failures = Vec::new();
-    for (name, x0) in [
-        ("orchard", -20.0),
-        ("orchard", 2.0),
-        ("building", -6.0),
-        ("canyon", -4.0),
-    ] {
-        let c = ahead_against_truth(name, x0, 0.04, 31);
-        let in_time = c.in_time as f64 / c.lost.max(1) as f64;
-        let early = c.early as f64 / c.flagged.max(1) as f64;
-        eprintln!(
-            "{name:<9} x {x0:>6.1}: {} points lost within 1.2 m, {:.1} % flagged in time; {} flagged, {:.1} % more than two frames early",
-            c.lost,
-            100.0 * in_time,
-            c.flagged,
-            100.0 * early
-        );
-        if early > 0.10 {
-            failures.push(format!("{name} x {x0}: early {early:.3}"));
-        }
-    }
-    assert!(failures.is_empty(), "{failures:?}");
 }

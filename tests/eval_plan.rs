@@ -1,6 +1,11 @@
 //! Captures chosen by the daemon's trigger, and the equal-capture scaling.
 
-use alfd::eval::plan::{captures, largest_passing_scale, scale_to_count, SCALE_PRECISION};
+use alfd::core::closedloop::{ClosedLoopTargets, DepthSnapshot, View};
+use alfd::core::{DepthData, DepthImage, Intrinsics};
+use alfd::eval::plan::{
+    captures, closed_loop_captures, largest_passing_scale, scale_to_count, SCALE_PRECISION,
+};
+use glam::{DMat3, DVec3};
 
 #[test]
 fn constant_spacing_captures_every_k_views_and_the_last() {
@@ -80,4 +85,57 @@ fn the_largest_passing_scale_never_returns_a_failing_scale() {
     }
     assert_eq!(largest_passing_scale(1.0, |_| false), None);
     assert_eq!(largest_passing_scale(1.0, |_| true), Some(1e4));
+}
+
+/// A nadir view at `x_m` over a roof 10 m below the camera (north −2…2 m,
+/// every east) and ground 20 m below; image x is north, `f` = 32 px, 64 × 48.
+fn roof_view(x_m: f64) -> View {
+    let (w, h, f) = (64, 48, 32.0);
+    let d: Vec<f32> = (0..w * h)
+        .map(|k| {
+            let t = ((k % w) as f64 + 0.5 - 32.0) / f;
+            if (-2.0..=2.0).contains(&(x_m + 10.0 * t)) {
+                10.0
+            } else {
+                20.0
+            }
+        })
+        .collect();
+    let intr = Intrinsics::from_focal_px(w, h, f, None).unwrap();
+    View {
+        depth: DepthSnapshot::new(
+            &DepthImage::new(w, h, DepthData::Metres(d)).unwrap(),
+            &intr,
+            1,
+        ),
+        cam_to_ned: DMat3::IDENTITY,
+        pos_ned_m: DVec3::new(x_m, 0.0, 0.0),
+    }
+}
+
+#[test]
+fn the_closed_loop_captures_where_the_measured_parallax_reaches_its_target() {
+    // Roof and ground, 10 and 20 m: a baseline `b` spans 32·b·(1/10 − 1/20)
+    // = 1.6·b px, so 2 px is reached at 1.25 m. The open loop allows 5 m.
+    let step_m = 0.1;
+    let views: Vec<View> = (0..81)
+        .map(|k| roof_view(-4.0 + k as f64 * step_m))
+        .collect();
+    let open = vec![Some(5.0); views.len()];
+    let targets = ClosedLoopTargets {
+        parallax_px: Some(2.0),
+        unseen_fraction_max: 0.002,
+    };
+    let flight = closed_loop_captures(&open, &views, step_m, 5.0, &targets);
+    let c = &flight.captures;
+    assert_eq!(c[0], 0);
+    assert_eq!(*c.last().unwrap(), 80, "the line's end");
+    // Every interval but the last (cut by the line's end) stops at the
+    // last view before 1.25 m.
+    for w in c[..c.len() - 1].windows(2) {
+        assert_eq!(w[1] - w[0], 12, "{c:?}");
+    }
+    assert_eq!(flight.by_bound, vec![("parallax", c.len() - 2)]);
+    // Without the closed loop: every 5 m (50 views).
+    assert_eq!(captures(&open, step_m, 5.0, 1.0), vec![0, 50, 80]);
 }

@@ -185,20 +185,8 @@ pub struct ClosedLoopRecord {
     pub in_view_fraction: f64,
     /// The spacing the closed loop allowed (`null`: no target near).
     pub spacing_m: Option<f64>,
-    /// `parallax`, `unseen_fraction` or `views_per_point`, when `spacing_m`
-    /// is set.
+    /// `parallax` or `unseen_fraction`, when `spacing_m` is set.
     pub bound: Option<String>,
-    /// The previous capture's points short of `views_per_point_min` captures
-    /// unless this one sees them (its samples in the middle half across
-    /// track), how many this frame no longer saw (missed: no capture could
-    /// hold them any more) and how many it saw that the next frame would not
-    /// (held by this capture). Absent in manifests written before them.
-    #[serde(default)]
-    pub views_needed: u64,
-    #[serde(default)]
-    pub views_lost: u64,
-    #[serde(default)]
-    pub views_at_risk: u64,
 }
 
 /// Pinhole intrinsics of the captured image (pixels), as the exports need them.

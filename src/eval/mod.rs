@@ -1507,15 +1507,13 @@ pub fn evaluate_scene(
         Guarantee::default()
     };
     // The quality model as the daemon flies it, open loop and with the closed
-    // loop on (its views-per-point measure holds what one frame's depth cannot
-    // see leave: the underside of a crown), each judged by the truth.
+    // loop on, each judged by the truth.
     pb.set_message(format!("{}: the closed loop as flown", scene.name));
     let flown: Vec<FlownRun> = {
         let q = quality_params().quality;
         let cl_targets = crate::core::closedloop::ClosedLoopTargets {
             parallax_px: q.parallax_px,
             unseen_fraction_max: q.unseen_fraction_max,
-            views_per_point_min: q.views_per_point_min,
         };
         let closed = plan::closed_loop_captures(
             &visibility_spacing,

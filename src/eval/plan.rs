@@ -4,7 +4,6 @@
 
 use crate::core::closedloop::{ClosedLoop, ClosedLoopTargets, View};
 use crate::core::trigger::{Decision, Opportunity, Trigger, TriggerParams};
-use glam::DVec3;
 
 /// Trigger settings of the evaluation: no rate limit (the comparison is of
 /// spacings, not of a camera), captures exactly at the spacing (no margin).
@@ -46,20 +45,14 @@ pub fn captures(spacings: &[Option<f64>], step_m: f64, speed_mps: f64, scale: f6
 pub struct ClosedLoopFlight {
     pub captures: Vec<usize>,
     /// Captures whose spacing the closed loop set, by its bound's name
-    /// (`parallax`, `unseen_fraction`, `views_per_point`).
+    /// (`parallax`, `unseen_fraction`).
     pub by_bound: Vec<(&'static str, usize)>,
-    /// Over the captures the closed loop measured: samples short of the
-    /// views target that the capturing frame no longer saw (missed) and that
-    /// it held (at risk one frame ahead).
-    pub views_lost: u64,
-    pub views_at_risk: u64,
 }
 
 /// Capture indices as [`captures`] at scale 1, with the closed loop on as in
 /// the daemon (`core::step`): each view's `open` spacing and the closed
 /// loop's measure of its kept depth `kept[k]` against the last capture, the
-/// tighter of the two. The views lie `step_m` apart along `+x` of the views'
-/// frame.
+/// tighter of the two. The views lie `step_m` apart.
 pub fn closed_loop_captures(
     open: &[Option<f64>],
     kept: &[View],
@@ -70,10 +63,9 @@ pub fn closed_loop_captures(
     let mut t = Trigger::new(trigger_params());
     let mut cl = ClosedLoop::default();
     let mut out = ClosedLoopFlight::default();
-    let ahead = DVec3::new(step_m, 0.0, 0.0);
     for (k, (s, view)) in open.iter().zip(kept).enumerate() {
         let odometer_m = k as f64 * step_m;
-        let measure = cl.on_frame(view.clone(), odometer_m, ahead, targets);
+        let measure = cl.on_frame(view.clone(), odometer_m, step_m, targets);
         let closed = measure.and_then(|m| m.spacing_m);
         let spacing_m = match (*s, closed) {
             (Some(a), Some(b)) => Some(a.min(b)),
@@ -90,8 +82,6 @@ pub fn closed_loop_captures(
             out.captures.push(k);
             cl.on_capture(view.clone(), odometer_m);
             if let Some(m) = measure {
-                out.views_lost += m.views.lost;
-                out.views_at_risk += m.views.at_risk;
                 // The closed loop set it when it was the tighter.
                 if let (Some(c), Some(b)) = (m.spacing_m, m.bound) {
                     if s.is_none_or(|o| c < o) {

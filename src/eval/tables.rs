@@ -237,11 +237,7 @@ pub fn scene_json(r: &SceneResult) -> Value {
                 "min_views": run.min_views,
                 "meets": run.meets,
                 "segment_captures": run.segment_captures,
-                "closed_loop": run.closed.as_ref().map(|c| json!({
-                    "captures_by_bound": c.by_bound.iter().map(|(b, k)| (b.to_string(), json!(k))).collect::<Map<String, Value>>(),
-                    "views_at_risk": c.views_at_risk,
-                    "views_lost": c.views_lost,
-                })),
+                "closed_loop_captures_by_bound": run.closed.as_ref().map(|c| c.by_bound.iter().map(|(b, k)| (b.to_string(), json!(k))).collect::<Map<String, Value>>()),
             })
         })
         .collect();
@@ -555,9 +551,9 @@ pub fn markdown(results: &[SceneResult]) -> String {
         s,
         "\n### The quality model as flown: open loop, and with the closed loop\n"
     );
-    let _ = writeln!(s, "The quality model at scale 1 (what the daemon flies, no search), open loop, and with `[trigger] closed_loop = true`: each view's kept depth (about 4800 samples) measured against the last capture, the tighter of the two spacings. The closed loop's views-per-point measure: the last capture's points in the middle half across track that fewer than k − 1 earlier captures see, and of those the ones the frame still sees but a camera one view step ahead would not (walked through this frame's depth, behind a surface counts as solid): any such point captures now. Judged by the truth on every in-between view; fewest views as the data-volume table. Closed-loop captures: how many the closed loop set, by bound; views points lost: the last capture's samples short of k that the capturing frame no longer saw (too late for any capture), summed over captures.\n");
-    let _ = writeln!(s, "| scene | mode | captures | / fixed | / oracle | worst unseen | worst parallax (px) | fewest views | meets | closed-loop captures by bound | views points lost |");
-    let _ = writeln!(s, "|---|---|---:|---:|---:|---:|---:|---:|---|---|---:|");
+    let _ = writeln!(s, "The quality model at scale 1 (what the daemon flies, no search), open loop, and with `[trigger] closed_loop = true`: each view's kept depth (about 4800 samples) measured against the last capture, the tighter of the two spacings. Judged by the truth on every in-between view; fewest views as the data-volume table. Closed-loop captures: how many the closed loop set (it was the tighter), by bound.\n");
+    let _ = writeln!(s, "| scene | mode | captures | / fixed | / oracle | worst unseen | worst parallax (px) | fewest views | meets | closed-loop captures by bound |");
+    let _ = writeln!(s, "|---|---|---:|---:|---:|---:|---:|---:|---|---|");
     for r in results {
         let g = &r.guarantee;
         for run in &r.flown {
@@ -565,24 +561,19 @@ pub fn markdown(results: &[SceneResult]) -> String {
             let ratio = |d: Option<usize>| {
                 d.map_or("–".into(), |d| format!("{:.2}", n as f64 / d as f64))
             };
-            let (bounds, points) = match &run.closed {
-                Some(c) => (
-                    if c.by_bound.is_empty() {
-                        "none".to_string()
-                    } else {
-                        c.by_bound
-                            .iter()
-                            .map(|(b, k)| format!("{b} {k}"))
-                            .collect::<Vec<_>>()
-                            .join(", ")
-                    },
-                    c.views_lost.to_string(),
-                ),
-                None => ("–".to_string(), "–".to_string()),
+            let bounds = match &run.closed {
+                Some(c) if c.by_bound.is_empty() => "none".to_string(),
+                Some(c) => c
+                    .by_bound
+                    .iter()
+                    .map(|(b, k)| format!("{b} {k}"))
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                None => "–".to_string(),
             };
             let _ = writeln!(
                 s,
-                "| {} | {} | {} | {} | {} | {:.4} | {} | {} | {} | {} | {} |",
+                "| {} | {} | {} | {} | {} | {:.4} | {} | {} | {} | {} |",
                 r.name,
                 run.mode,
                 n,
@@ -593,7 +584,6 @@ pub fn markdown(results: &[SceneResult]) -> String {
                 run.min_views.map_or("–".into(), |v| v.to_string()),
                 if run.meets { "yes" } else { "no" },
                 bounds,
-                points,
             );
         }
     }

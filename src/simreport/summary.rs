@@ -347,10 +347,7 @@ const TARGET_BOUNDS: [(&str, &[&str]); 4] = [
         "unseen_fraction",
         &["unseen_fraction", "closed_loop_unseen_fraction"],
     ),
-    (
-        "views_per_point",
-        &["views_per_point", "closed_loop_views_per_point"],
-    ),
+    ("views_per_point", &["views_per_point"]),
 ];
 
 impl Summary {

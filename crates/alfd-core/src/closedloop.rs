@@ -2,10 +2,8 @@
 //! measure against the last capture. The capture's depth (decimated) is warped
 //! into each frame's full 6-DoF pose: the parallax span between the two and the
 //! fraction of an in-between frame that neither the capture nor the current
-//! frame sees (what the next capture would leave unseen if taken now), and the
-//! capture's points still short of `views_per_point_min` captures that the
-//! frame loses or will lose one frame ahead. Pure: depth, poses and distances
-//! are arguments.
+//! frame sees (what the next capture would leave unseen if taken now). Pure:
+//! depth, poses and distances are arguments.
 
 use super::depth::{DepthData, DepthImage, Intrinsics};
 use glam::{DMat3, DVec3};
@@ -89,18 +87,6 @@ impl DepthSnapshot {
             depth_m,
             far_m,
         }
-    }
-
-    /// The sample nearest the image point `(u, v)` (px), `None` outside the
-    /// image.
-    fn nearest(&self, u: f64, v: f64) -> Option<f32> {
-        if !(u >= 0.0 && v >= 0.0 && u < self.width as f64 && v < self.height as f64) {
-            return None;
-        }
-        let s = self.step as f64;
-        let c = (((u - 0.5) / s).round().max(0.0) as usize).min(self.cols - 1);
-        let r = (((v - 0.5) / s).round().max(0.0) as usize).min(self.rows - 1);
-        Some(self.depth_m[r * self.cols + c])
     }
 
     /// The four samples around the image point `(u, v)` (px, pixel `i`
@@ -216,119 +202,6 @@ impl View {
     }
 }
 
-impl View {
-    /// Whether a camera at `to` would not see `p`, a point this view sees,
-    /// judged from this view's depth alone: the segment from `p` to `to` is
-    /// walked in this view's image, a sample at a time, and is blocked where
-    /// the sample nearest its image shows a surface nearer than the segment
-    /// (beyond the seen tolerance), i.e. where it passes behind what this view
-    /// shows. Behind a surface counts as solid: what this view does not see it
-    /// cannot call free. (The nearest sample, not any around as [`View::sees`]
-    /// takes: the edge is where it is to half a sample, and a lenient test
-    /// would call every segment within a sample of an edge free.) Where the
-    /// walk leaves the image, or meets invalid depth, nothing blocks.
-    fn blocked(&self, p: DVec3, to: DVec3) -> bool {
-        let rt = self.cam_to_ned.transpose();
-        let a = rt * (p - self.pos_ned_m);
-        let b = rt * (to - p);
-        if a.z.is_nan() || a.z <= 1e-9 {
-            return false;
-        }
-        let (cx, cy) = self.depth.principal_px;
-        let f = self.depth.focal_px;
-        // The image point of `a + s·b` moves at `m / z(s)²` px per unit of
-        // `s` (`z(s) = a.z + s·b.z`): a step `ds` moves it
-        // `m·ds / (z·(z + ds·b.z))`, one sample when `ds` is as below.
-        let m = f * (b.x * a.z - a.x * b.z).hypot(b.y * a.z - a.y * b.z);
-        if !(m > 0.0 && m.is_finite()) {
-            // Along this view's own ray to `p`, which it sees: free.
-            return false;
-        }
-        let step_px = self.depth.step as f64;
-        let mut s = 0.0;
-        // At most one visit per sample of the longest image line, and then some.
-        for _ in 0..4 * (self.depth.cols + self.depth.rows) {
-            let z = a.z + s * b.z;
-            let denom = m - step_px * z * b.z;
-            if !(z > 1e-9 && denom > 0.0) {
-                return false;
-            }
-            s += step_px * z * z / denom;
-            if s >= 1.0 {
-                return false;
-            }
-            let q = a + b * s;
-            if q.z.is_nan() || q.z <= 1e-9 {
-                return false;
-            }
-            let Some(d) = self.depth.nearest(cx + f * q.x / q.z, cy + f * q.y / q.z) else {
-                return false;
-            };
-            let (valid, free) = (!d.is_nan(), d as f64 >= q.z - seen_tolerance_m(q.z));
-            if valid && !free {
-                return true;
-            }
-        }
-        false
-    }
-
-    /// For a point `p` (NED) this view sees: how much further the camera can
-    /// move by `step_m` (NED, one frame's travel) with `p` still in its frame
-    /// and not behind what this view shows ([`View::blocked`]), m, looking at
-    /// most [`LOOKAHEAD_STEPS`] steps ahead (`None`: kept that far, or this
-    /// view does not see `p`). Doubling from one step, then halving the
-    /// bracket to half a step; the kept end is returned (a capture there still
-    /// sees `p`). One frame's travel moves an occluder's edge by a fraction of
-    /// a pixel, so a single step ahead cannot be judged from a depth map: the
-    /// distance is, to about a pixel of the edge's image motion.
-    pub fn remaining_m(&self, p: DVec3, step_m: DVec3) -> Option<f64> {
-        if self.sees(p) != Sight::Seen {
-            return None;
-        }
-        let len = step_m.length();
-        if !(len > 0.0 && len.is_finite()) {
-            return None;
-        }
-        let lost = |k: f64| {
-            let at = self.pos_ned_m + step_m * k;
-            !self.in_frame_from(p, at) || self.blocked(p, at)
-        };
-        let (mut kept, mut gone) = (0.0, None);
-        let mut k = 1.0;
-        while k <= LOOKAHEAD_STEPS as f64 {
-            if lost(k) {
-                gone = Some(k);
-                break;
-            }
-            kept = k;
-            k *= 2.0;
-        }
-        let mut gone = gone?;
-        while gone - kept > 0.5 {
-            let mid = 0.5 * (kept + gone);
-            if lost(mid) {
-                gone = mid;
-            } else {
-                kept = mid;
-            }
-        }
-        Some(kept * len)
-    }
-
-    /// Whether `p` lies inside this view's frame were the camera at `pos`
-    /// (same attitude).
-    fn in_frame_from(&self, p: DVec3, pos: DVec3) -> bool {
-        let q = self.cam_to_ned.transpose() * (p - pos);
-        if q.z.is_nan() || q.z <= 1e-9 {
-            return false;
-        }
-        let (cx, cy) = self.depth.principal_px;
-        let f = self.depth.focal_px;
-        let (u, v) = (cx + f * q.x / q.z, cy + f * q.y / q.z);
-        u >= 0.0 && v >= 0.0 && u < self.depth.width as f64 && v < self.depth.height as f64
-    }
-}
-
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Sight {
     Seen,
@@ -435,105 +308,11 @@ pub fn unseen_fraction(mid: &View, a: &View, b: &View) -> f64 {
     }
 }
 
-/// How many frames ahead [`View::remaining_m`] looks (a power of two).
-pub const LOOKAHEAD_STEPS: u32 = 16;
-
-/// Earlier captures the closed loop keeps for the views-per-point count:
-/// a point seen by all of them counts as held by `views_per_point_min − 1`
-/// captures even where that is more (so `views_per_point_min` above
-/// `EARLIER_CAPTURES_MAX + 1` is held as `EARLIER_CAPTURES_MAX + 1`).
-pub const EARLIER_CAPTURES_MAX: usize = 8;
-
-/// The capture's points the next capture must also see, and how many of them
-/// a frame has lost.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct ViewsAtRisk {
-    /// The capture's surface samples in the middle half across track (the
-    /// views bound's band, as the open loop's and the truth's) that fewer than
-    /// `k − 1` earlier captures see: short of `k` captures unless the next
-    /// capture sees them too.
-    pub needed: u64,
-    /// Of those, the ones the frame no longer sees (hidden or out of its
-    /// frame): a capture now is too late for them.
-    pub lost: u64,
-    /// The ones the frame still sees but a camera one frame ahead would not
-    /// (out of its frame, or behind what this frame shows): a capture now
-    /// holds them, the next frame's would not.
-    pub at_risk: u64,
-    /// The least travel, m, before the frame loses one of those it still
-    /// sees ([`View::remaining_m`]; `None`: none within the look-ahead).
-    pub remaining_m: Option<f64>,
-}
-
-/// The capture `capture`'s points short of `k` captures (`earlier`: the
-/// captures before it, newest first) against the frame `frame`, whose next
-/// frame is `ahead_m` further (NED, m). Samples an invalid depth leaves
-/// undecided count as seen, as in [`unseen_fraction`]: missing depth must not
-/// trigger captures.
-pub fn views_at_risk(
-    capture: &View,
-    earlier: &[View],
-    k: u32,
-    frame: &View,
-    ahead_m: DVec3,
-) -> ViewsAtRisk {
-    let mut out = ViewsAtRisk::default();
-    if k < 2 {
-        return out;
-    }
-    // Held by this many earlier captures, the capture makes `k` (capped: see
-    // [`EARLIER_CAPTURES_MAX`]). Early in a flight there are fewer: short.
-    let enough = (k as usize - 1).min(EARLIER_CAPTURES_MAX);
-    let earlier = &earlier[..earlier.len().min(enough)];
-    // Across track is the image axis the motion runs less along.
-    let dir = capture.cam_to_ned.transpose() * ahead_m;
-    let along_columns = dir.x.abs() >= dir.y.abs();
-    let d = &capture.depth;
-    for r in 0..d.rows {
-        for c in 0..d.cols {
-            let (u, v) = (c * d.step, r * d.step);
-            let in_band = if along_columns {
-                v >= d.height / 4 && v < d.height - d.height / 4
-            } else {
-                u >= d.width / 4 && u < d.width - d.width / 4
-            };
-            if !in_band {
-                continue;
-            }
-            let Some((p, _)) = capture.point(c, r) else {
-                continue;
-            };
-            let held = earlier
-                .iter()
-                .filter(|e| matches!(e.sees(p), Sight::Seen | Sight::Unknown))
-                .count();
-            if held >= enough {
-                continue;
-            }
-            out.needed += 1;
-            match frame.sees(p) {
-                Sight::Unknown => {}
-                Sight::Hidden | Sight::Outside => out.lost += 1,
-                Sight::Seen => {
-                    if let Some(rem) = frame.remaining_m(p, ahead_m) {
-                        out.remaining_m = Some(out.remaining_m.map_or(rem, |m: f64| m.min(rem)));
-                        // Kept for less than one frame's travel: lost by the next.
-                        out.at_risk += (rem < ahead_m.length()) as u64;
-                    }
-                }
-            }
-        }
-    }
-    out
-}
-
 /// The targets the closed loop holds (the quality model's).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ClosedLoopTargets {
     pub parallax_px: Option<f64>,
     pub unseen_fraction_max: f64,
-    /// Every point in at least this many captures (1: no views bound).
-    pub views_per_point_min: u32,
 }
 
 /// One frame's measurement against the last capture.
@@ -546,14 +325,10 @@ pub struct Measure {
     /// were taken now.
     pub unseen_fraction: f64,
     pub in_view_fraction: f64,
-    /// The last capture's points short of `views_per_point_min` captures,
-    /// and how many of them this frame lost or will lose one frame ahead.
-    pub views: ViewsAtRisk,
     /// The largest spacing the measurements allow, extrapolated one frame
     /// ahead (`None`: no target is near).
     pub spacing_m: Option<f64>,
-    /// Which target sets `spacing_m`: `parallax`, `unseen_fraction` or
-    /// `views_per_point`.
+    /// Which target sets `spacing_m`: `parallax` or `unseen_fraction`.
     pub bound: Option<&'static str>,
 }
 
@@ -561,8 +336,6 @@ pub struct Measure {
 #[derive(Debug, Clone, Default)]
 pub struct ClosedLoop {
     capture: Option<(View, f64)>,
-    /// The captures before it, newest first, at most [`EARLIER_CAPTURES_MAX`].
-    earlier: Vec<View>,
     kept: Vec<(View, f64)>,
     last: Option<Measure>,
 }
@@ -570,31 +343,20 @@ pub struct ClosedLoop {
 impl ClosedLoop {
     /// A capture was taken at `view`, at odometer reading `odometer_m`.
     pub fn on_capture(&mut self, view: View, odometer_m: f64) {
-        if let Some((old, _)) = self.capture.take() {
-            self.earlier.insert(0, old);
-            self.earlier.truncate(EARLIER_CAPTURES_MAX);
-        }
         self.capture = Some((view, odometer_m));
         self.kept.clear();
         self.last = None;
     }
 
-    /// Measures `view` (at `odometer_m`) against the last capture; `ahead_m`
-    /// is the travel to the next frame (NED, m; its horizontal length is the
-    /// odometer's step). `None` before the first capture.
+    /// Measures `view` (at `odometer_m`) against the last capture; `next_step_m`
+    /// is the travel to the next frame. `None` before the first capture.
     pub fn on_frame(
         &mut self,
         view: View,
         odometer_m: f64,
-        ahead_m: DVec3,
+        next_step_m: f64,
         t: &ClosedLoopTargets,
     ) -> Option<Measure> {
-        let ahead_m = if ahead_m.is_finite() {
-            ahead_m
-        } else {
-            DVec3::ZERO
-        };
-        let next_step_m = ahead_m.x.hypot(ahead_m.y);
         let (cap, cap_odo) = self.capture.as_ref()?;
         let d = (odometer_m - cap_odo).max(0.0);
         let p = pair(cap, &view);
@@ -609,8 +371,11 @@ impl ClosedLoop {
             })
             .map(|(v, _)| v);
         let unseen = mid.map_or(0.0, |m| unseen_fraction(m, cap, &view));
-        let views = views_at_risk(cap, &self.earlier, t.views_per_point_min, &view, ahead_m);
-        let step = next_step_m;
+        let step = if next_step_m.is_finite() {
+            next_step_m.max(0.0)
+        } else {
+            0.0
+        };
         let mut best: Option<(f64, &'static str)> = None;
         let mut offer = |s: f64, name: &'static str| {
             if s.is_finite() && best.is_none_or(|(b, _)| s < b) {
@@ -634,18 +399,11 @@ impl ClosedLoop {
                 offer(d, "unseen_fraction");
             }
         }
-        // The first point short of the views target that the frame will
-        // lose: capture before it is. (The ones already lost a capture
-        // cannot bring back.)
-        if let Some(rem) = views.remaining_m {
-            offer(d + rem, "views_per_point");
-        }
         let m = Measure {
             distance_m: d,
             parallax_px: p.parallax_span_px,
             unseen_fraction: unseen,
             in_view_fraction: p.in_view_fraction,
-            views,
             spacing_m: best.map(|b| b.0),
             bound: best.map(|b| b.1),
         };
@@ -670,107 +428,6 @@ mod tests {
 
     fn metres(w: usize, h: usize, d: Vec<f32>) -> DepthImage {
         DepthImage::new(w, h, DepthData::Metres(d)).unwrap()
-    }
-
-    /// A thin plate 10 m below a nadir camera (north 2–4 m, every east) over
-    /// ground at 20 m; image x is north, `f` = 32 px, 64 × 48. The ground
-    /// under the plate's near edge is seen under it; flying north the ray
-    /// meets the plate's underside, flying south never.
-    fn plate_view() -> View {
-        let (w, h, f) = (64, 48, 32.0);
-        let d: Vec<f32> = (0..w * h)
-            .map(|k| {
-                let t = ((k % w) as f64 + 0.5 - 32.0) / f;
-                if (0.2..=0.4).contains(&t) {
-                    10.0
-                } else {
-                    20.0
-                }
-            })
-            .collect();
-        let intr = Intrinsics::from_focal_px(w, h, f, None).unwrap();
-        View {
-            depth: DepthSnapshot::new(&metres(w, h, d), &intr, 1),
-            cam_to_ned: DMat3::IDENTITY,
-            pos_ned_m: DVec3::ZERO,
-        }
-    }
-
-    #[test]
-    fn the_look_ahead_finds_the_plates_underside_to_a_pixel() {
-        let v = plate_view();
-        // Pixel 37's ground point: north 20·(37.5 − 32)/32 = 3.4375 m, seen
-        // under the plate. The truth loses it flying north once the ray at
-        // 10 m passes the edge: (δ + 3.4375)/2 ≥ 2, δ ≥ 0.5625 m. The depth
-        // map puts the edge at pixel 38's boundary (t = 0.203 against 0.2)
-        // and asks the segment to be the seen tolerance behind the plate:
-        // about 0.63 m (see the comment at `blocked`), to half a step.
-        let (u, z) = (37.5, 20.0);
-        let p = DVec3::new(z * (u - 32.0) / 32.0, z * (24.5 - 24.0) / 32.0, z);
-        let north = DVec3::new(0.05, 0.0, 0.0);
-        let rem = v.remaining_m(p, north).expect("lost within 16 steps");
-        assert!((0.55..=0.70).contains(&rem), "north: {rem} m");
-        // Flying south the ray steepens away from the plate; the frame edge is
-        // 6 m away, beyond the look-ahead.
-        assert_eq!(v.remaining_m(p, -north), None);
-        // A ground point far from the plate: nothing within the look-ahead.
-        let q = DVec3::new(z * (10.5 - 32.0) / 32.0, 0.0, z);
-        assert_eq!(v.remaining_m(q, north), None);
-        // Not seen (behind the plate): no look-ahead.
-        let hidden = DVec3::new(20.0 * 0.3, 0.0, 20.0);
-        assert_eq!(v.remaining_m(hidden, north), None);
-        // Hovering: nothing is lost.
-        assert_eq!(v.remaining_m(p, DVec3::ZERO), None);
-    }
-
-    #[test]
-    fn flat_ground_is_never_lost_but_at_the_frame_edge() {
-        let (w, h, f) = (64, 48, 32.0);
-        let intr = Intrinsics::from_focal_px(w, h, f, None).unwrap();
-        let v = View {
-            depth: DepthSnapshot::new(&metres(w, h, vec![20.0; w * h]), &intr, 1),
-            cam_to_ned: DMat3::IDENTITY,
-            pos_ned_m: DVec3::ZERO,
-        };
-        let step = DVec3::new(0.1, 0.03, 0.0);
-        for c in 0..w {
-            let p = DVec3::new(20.0 * (c as f64 + 0.5 - 32.0) / 32.0, 0.0, 20.0);
-            let rem = v.remaining_m(p, step);
-            // The frame's back edge (north −20 m at this depth) is the only loss.
-            let to_edge_m = p.x + 20.0;
-            let len = step.length();
-            match rem {
-                Some(r) => assert!(
-                    r <= to_edge_m / (step.x / len) && r > to_edge_m / (step.x / len) - 0.6 * len,
-                    "column {c}: lost after {r} m, edge at {to_edge_m} m north"
-                ),
-                None => assert!(
-                    to_edge_m / (step.x / len) > 15.0 * len,
-                    "column {c}: kept, edge at {to_edge_m} m north"
-                ),
-            }
-        }
-    }
-
-    #[test]
-    fn views_at_risk_counts_what_no_earlier_capture_holds() {
-        let v = plate_view();
-        let north = DVec3::new(0.05, 0.0, 0.0);
-        // k = 1: no views bound.
-        assert_eq!(views_at_risk(&v, &[], 1, &v, north), ViewsAtRisk::default());
-        // k = 2, no earlier capture: every sample of the middle half needs the
-        // next one; the frame is the capture itself, so none is lost yet.
-        let r = views_at_risk(&v, &[], 2, &v, north);
-        assert_eq!(r.needed, 64 * 24);
-        assert_eq!(r.lost, 0);
-        // The back edge's column goes first: its ground (north −19.6875 m)
-        // leaves the frame (north −20 m) after 0.3125 m, to half a step.
-        let rem = r.remaining_m.expect("the back edge");
-        assert!((0.3125 - 0.025..=0.3125).contains(&rem), "{rem}");
-        // An earlier capture at the same place holds everything it sees.
-        let held = views_at_risk(&v, std::slice::from_ref(&v), 2, &v, north);
-        assert_eq!(held.needed, 0);
-        assert_eq!(held.remaining_m, None);
     }
 
     #[test]

@@ -164,12 +164,9 @@ impl Pipeline {
         let targets = ClosedLoopTargets {
             parallax_px: q.parallax_px,
             unseen_fraction_max: q.unseen_fraction_max,
-            views_per_point_min: q.views_per_point_min,
         };
-        // Where the next frame will be: the velocity over one frame period.
-        let ahead_m = pose.vel_ned_mps * self.params.frame_period_s;
         let measure = match (&mut self.closed_loop, &view) {
-            (Some(cl), Some(v)) => cl.on_frame(v.clone(), self.odometer_m, ahead_m, &targets),
+            (Some(cl), Some(v)) => cl.on_frame(v.clone(), self.odometer_m, next_step_m, &targets),
             _ => None,
         };
         let closed_m = measure.and_then(|m| m.spacing_m);
