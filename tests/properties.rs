@@ -410,3 +410,81 @@ proptest! {
         }
     }
 }
+
+/// A closed-loop view: a random map as the estimator's cases, kept every
+/// `step` pixels, under any attitude (roll, pitch and yaw over the whole
+/// circle, ±90° pitch exactly among them) at a position a few metres from the
+/// origin or exactly on it (two views in one place).
+fn closed_loop_view() -> impl Strategy<Value = alfd::core::closedloop::View> {
+    let angle = prop_oneof![
+        6 => -std::f64::consts::PI..std::f64::consts::PI,
+        1 => Just(std::f64::consts::FRAC_PI_2),
+        1 => Just(-std::f64::consts::FRAC_PI_2),
+        1 => Just(0.0),
+    ];
+    let coord = prop_oneof![3 => -5.0f64..5.0, 1 => Just(0.0)];
+    (
+        random_case(),
+        1usize..=3,
+        (angle.clone(), angle.clone(), angle),
+        (coord.clone(), coord.clone(), coord),
+    )
+        .prop_map(|(c, step, (roll, pitch, yaw), (x, y, z))| {
+            let img = DepthImage::new(c.w, c.h, DepthData::Metres(c.depth)).unwrap();
+            alfd::core::closedloop::View {
+                depth: alfd::core::closedloop::DepthSnapshot::new(&img, &c.intr, step),
+                cam_to_ned: glam::DMat3::from_euler(glam::EulerRot::ZYX, yaw, pitch, roll),
+                pos_ned_m: glam::DVec3::new(x, y, z),
+            }
+        })
+}
+
+fn unit(x: f64) -> bool {
+    (0.0..=1.0).contains(&x)
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: cases() / 4, ..config() })]
+
+    /// The closed loop on any maps (sky, invalid and negative depths, 1 mm to
+    /// 1000 km), any attitudes (±90° pitch, upside down), any focal length the
+    /// estimator takes, views in one place or apart, odometer steps of zero,
+    /// huge or not a number: every measure is a fraction in [0, 1] or a
+    /// finite non-negative number, a spacing only with the bound that set it,
+    /// never NaN.
+    #[test]
+    fn the_closed_loop_never_gives_nan(
+        a in closed_loop_view(),
+        m in closed_loop_view(),
+        b in closed_loop_view(),
+        d_m in prop_oneof![3 => 0.0f64..50.0, 1 => Just(0.0), 1 => Just(1e12)],
+        step_m in prop_oneof![3 => 0.0f64..5.0, 1 => Just(f64::NAN), 1 => Just(f64::INFINITY)],
+        parallax_px in prop_oneof![3 => (0.01f64..100.0).prop_map(Some), 1 => Just(None)],
+        unseen_max in prop_oneof![0.0f64..1.0, Just(0.0), Just(1.0)],
+    ) {
+        use alfd::core::closedloop::{pair, unseen_fraction, ClosedLoop, ClosedLoopTargets};
+        let p = pair(&a, &b);
+        prop_assert!(p.parallax_span_px.is_none_or(finite_nonneg), "{p:?}");
+        prop_assert!(unit(p.in_view_fraction) && unit(p.hidden_fraction), "{p:?}");
+        prop_assert!(p.samples as usize <= b.depth.depth_m.len());
+        let u = unseen_fraction(&m, &a, &b);
+        prop_assert!(unit(u), "{u}");
+
+        let targets = ClosedLoopTargets { parallax_px, unseen_fraction_max: unseen_max };
+        let mut cl = ClosedLoop::default();
+        prop_assert!(cl.on_frame(a.clone(), 0.0, step_m, &targets).is_none());
+        cl.on_capture(a, 0.0);
+        for (view, odo) in [(m, 0.5 * d_m), (b, d_m)] {
+            let r = cl.on_frame(view, odo, step_m, &targets).expect("a capture to measure against");
+            prop_assert!(finite_nonneg(r.distance_m), "{r:?}");
+            prop_assert!(r.parallax_px.is_none_or(finite_nonneg), "{r:?}");
+            prop_assert!(unit(r.unseen_fraction) && unit(r.in_view_fraction), "{r:?}");
+            prop_assert!(r.spacing_m.is_none_or(finite_nonneg), "{r:?}");
+            prop_assert_eq!(r.spacing_m.is_some(), r.bound.is_some());
+            // Past the unseen target the loop asks for a capture now.
+            if r.unseen_fraction > unseen_max {
+                prop_assert!(r.spacing_m.is_some_and(|s| s <= r.distance_m), "{r:?}");
+            }
+        }
+    }
+}
