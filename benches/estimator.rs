@@ -13,16 +13,19 @@ use alfd::core::plane;
 use alfd::core::score;
 use alfd::core::visibility::{visibility, VisibilityParams, DEFAULT_PHASES};
 use alfd::core::{DepthData, DepthImage, EstimatorParams, Intrinsics};
-use alfd::synth::{reference_scenes, to_z16};
+use alfd::synth::{reference_scenes, to_z16, CameraPose};
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use std::hint::black_box;
 use std::time::Duration;
 
-fn frame(w: usize, h: usize) -> (DepthImage, Intrinsics, f64) {
-    let (_, world, pose) = reference_scenes()
+/// The `buildings` frame at `w × h` (Z16, 1 mm), the camera moved `dx_m`
+/// along track from the reference pose; and that pose.
+fn frame_at(w: usize, h: usize, dx_m: f64) -> (DepthImage, Intrinsics, CameraPose) {
+    let (_, world, mut pose) = reference_scenes()
         .into_iter()
         .find(|s| s.0 == "buildings")
         .unwrap();
+    pose.position_m[0] += dx_m;
     let intr = Intrinsics::from_hfov_deg(w, h, 69.0, None).unwrap();
     let z = to_z16(&world.render_depth(&pose, &intr), 0.001);
     (
@@ -36,29 +39,20 @@ fn frame(w: usize, h: usize) -> (DepthImage, Intrinsics, f64) {
         )
         .unwrap(),
         intr,
-        pose.pitch_rad,
+        pose,
     )
+}
+
+fn frame(w: usize, h: usize) -> (DepthImage, Intrinsics, f64) {
+    let (img, intr, pose) = frame_at(w, h, 0.0);
+    (img, intr, pose.pitch_rad)
 }
 
 /// The closed loop's view of the `buildings` frame with the camera moved
 /// `dx_m` along track: its kept depth (about 4800 samples) and pose, in the
 /// world frame (x along track, z up; OpenCV camera axes).
 fn closed_loop_view(w: usize, h: usize, dx_m: f64) -> View {
-    let (_, world, mut pose) = reference_scenes()
-        .into_iter()
-        .find(|s| s.0 == "buildings")
-        .unwrap();
-    pose.position_m[0] += dx_m;
-    let intr = Intrinsics::from_hfov_deg(w, h, 69.0, None).unwrap();
-    let img = DepthImage::new(
-        w,
-        h,
-        DepthData::Z16 {
-            data: to_z16(&world.render_depth(&pose, &intr), 0.001),
-            scale_m: 0.001,
-        },
-    )
-    .unwrap();
+    let (img, intr, pose) = frame_at(w, h, dx_m);
     let (s, c) = pose.pitch_rad.sin_cos();
     View {
         depth: DepthSnapshot::kept(&img, &intr),

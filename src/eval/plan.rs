@@ -3,6 +3,7 @@
 //! spacing, and the equal-capture scaling of a method's spacing.
 
 use crate::core::closedloop::{ClosedLoop, ClosedLoopTargets, View};
+use crate::core::step::tighter;
 use crate::core::trigger::{Decision, Opportunity, Trigger, TriggerParams};
 
 /// Trigger settings of the evaluation: no rate limit (the comparison is of
@@ -14,30 +15,51 @@ pub fn trigger_params() -> TriggerParams {
     }
 }
 
+/// Flies `n` dense views `step_m` apart through the daemon's trigger:
+/// `view(k, offer)` is called for each view in order and offers that view's
+/// spacing; `offer` returns whether the trigger captured there. The last view
+/// is always captured (the end of the survey line), so every view lies
+/// between two captures. Returns the capture indices.
+fn fly(
+    n: usize,
+    step_m: f64,
+    speed_mps: f64,
+    mut view: impl FnMut(usize, &mut dyn FnMut(Option<f64>) -> bool),
+) -> Vec<usize> {
+    let mut t = Trigger::new(trigger_params());
+    let mut out = Vec::new();
+    for k in 0..n {
+        let mut offer = |spacing_m: Option<f64>| {
+            let o = Opportunity {
+                time_s: k as f64 * step_m / speed_mps,
+                odometer_m: k as f64 * step_m,
+                next_step_m: step_m,
+                spacing_m,
+                pose_fresh: true,
+            };
+            let captured = matches!(t.update(&o), Decision::Capture(_));
+            if captured {
+                out.push(k);
+            }
+            captured
+        };
+        view(k, &mut offer);
+    }
+    if let Some(&last) = out.last() {
+        if last + 1 < n {
+            out.push(n - 1);
+        }
+    }
+    out
+}
+
 /// Capture indices among `spacings.len()` dense views `step_m` apart, each
 /// view's spacing multiplied by `scale`. The last view is always captured
 /// (the end of the survey line), so every view lies between two captures.
 pub fn captures(spacings: &[Option<f64>], step_m: f64, speed_mps: f64, scale: f64) -> Vec<usize> {
-    let mut t = Trigger::new(trigger_params());
-    let mut out = Vec::new();
-    for (k, s) in spacings.iter().enumerate() {
-        let o = Opportunity {
-            time_s: k as f64 * step_m / speed_mps,
-            odometer_m: k as f64 * step_m,
-            next_step_m: step_m,
-            spacing_m: s.map(|v| v * scale),
-            pose_fresh: true,
-        };
-        if let Decision::Capture(_) = t.update(&o) {
-            out.push(k);
-        }
-    }
-    if let Some(&last) = out.last() {
-        if last + 1 < spacings.len() {
-            out.push(spacings.len() - 1);
-        }
-    }
-    out
+    fly(spacings.len(), step_m, speed_mps, |k, offer| {
+        offer(spacings[k].map(|v| v * scale));
+    })
 }
 
 /// What the closed loop decided along a line flown with it.
@@ -60,46 +82,27 @@ pub fn closed_loop_captures(
     speed_mps: f64,
     targets: &ClosedLoopTargets,
 ) -> ClosedLoopFlight {
-    let mut t = Trigger::new(trigger_params());
     let mut cl = ClosedLoop::default();
-    let mut out = ClosedLoopFlight::default();
-    for (k, (s, view)) in open.iter().zip(kept).enumerate() {
+    let mut by_bound: Vec<(&'static str, usize)> = Vec::new();
+    let n = open.len().min(kept.len());
+    let captures = fly(n, step_m, speed_mps, |k, offer| {
         let odometer_m = k as f64 * step_m;
-        let measure = cl.on_frame(view.clone(), odometer_m, step_m, targets);
-        let closed = measure.and_then(|m| m.spacing_m);
-        let spacing_m = match (*s, closed) {
-            (Some(a), Some(b)) => Some(a.min(b)),
-            (a, b) => a.or(b),
-        };
-        let o = Opportunity {
-            time_s: odometer_m / speed_mps,
-            odometer_m,
-            next_step_m: step_m,
-            spacing_m,
-            pose_fresh: true,
-        };
-        if let Decision::Capture(_) = t.update(&o) {
-            out.captures.push(k);
-            cl.on_capture(view.clone(), odometer_m);
-            if let Some(m) = measure {
-                // The closed loop set it when it was the tighter.
-                if let (Some(c), Some(b)) = (m.spacing_m, m.bound) {
-                    if s.is_none_or(|o| c < o) {
-                        match out.by_bound.iter_mut().find(|e| e.0 == b) {
-                            Some(e) => e.1 += 1,
-                            None => out.by_bound.push((b, 1)),
-                        }
-                    }
+        let measure = cl.on_frame(kept[k].clone(), odometer_m, step_m, targets);
+        if !offer(tighter(open[k], measure.and_then(|m| m.spacing_m))) {
+            return;
+        }
+        cl.on_capture(kept[k].clone(), odometer_m);
+        // The closed loop set it when it was the tighter.
+        if let Some((c, b)) = measure.and_then(|m| m.spacing_m.zip(m.bound)) {
+            if open[k].is_none_or(|o| c < o) {
+                match by_bound.iter_mut().find(|e| e.0 == b) {
+                    Some(e) => e.1 += 1,
+                    None => by_bound.push((b, 1)),
                 }
             }
         }
-    }
-    if let Some(&last) = out.captures.last() {
-        if last + 1 < open.len() {
-            out.captures.push(open.len() - 1);
-        }
-    }
-    out
+    });
+    ClosedLoopFlight { captures, by_bound }
 }
 
 /// The scale (one constant for the whole line) at which the method captures

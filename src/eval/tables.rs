@@ -589,10 +589,8 @@ pub fn markdown(results: &[SceneResult]) -> String {
     }
     let _ = writeln!(s, "\nPer segment, captures inside it as flown, open / closed loop, and the segment's target spacing by the truth (m):\n");
     for r in results {
-        let (Some(o), Some(c)) = (
-            r.flown.iter().find(|f| f.mode == "open loop"),
-            r.flown.iter().find(|f| f.mode == "closed loop"),
-        ) else {
+        // Open loop, then closed loop (`evaluate_scene`).
+        let [o, c] = &r.flown[..] else {
             continue;
         };
         let line: Vec<String> = r

@@ -56,6 +56,15 @@ pub struct Decided {
     pub closed_loop: Option<Measure>,
 }
 
+/// The spacing the trigger flies with the closed loop on: the tighter of the
+/// open loop's and the closed loop's, whichever of them there is.
+pub fn tighter(open_m: Option<f64>, closed_m: Option<f64>) -> Option<f64> {
+    match (open_m, closed_m) {
+        (Some(a), Some(b)) => Some(a.min(b)),
+        (a, b) => a.or(b),
+    }
+}
+
 pub struct Pipeline {
     estimator: Estimator,
     trigger: Trigger,
@@ -170,10 +179,7 @@ impl Pipeline {
             _ => None,
         };
         let closed_m = measure.and_then(|m| m.spacing_m);
-        let spacing_m = match (estimate.spacing.chosen_m, closed_m) {
-            (Some(a), Some(b)) => Some(a.min(b)),
-            (a, b) => a.or(b),
-        };
+        let spacing_m = tighter(estimate.spacing.chosen_m, closed_m);
         let decision = self.trigger.update(&Opportunity {
             time_s: f.mono_ns as f64 * 1e-9,
             odometer_m: self.odometer_m,
