@@ -260,6 +260,15 @@ fn open_ground_and_a_street_along_track_bind_nothing() {
 
 // ------------------------------------------------------ ray casting, 2-D profiles
 
+/// How far off a surface, relative to its distance, a sample may be placed and
+/// still count as lying on it. The depth is rounded to `f32` and inverted in
+/// `f32`, each within 2^-24 of its value, so a sample is within 1.2e-7 of its
+/// distance of the surface it was rendered on; this is 8 times that. The scale
+/// is the point's own distance, not the altitude: a corner 8.4 µm above a
+/// point on a wall 3 m below the camera hides it, while 1e-6 of a 10 m
+/// altitude would have taken the corner for the point's own roof.
+const ON_SURFACE_REL: f64 = 1e-6;
+
 /// A 2-D scene: a camera at height `height` over ground with slabs.
 #[derive(Debug, Clone)]
 struct Profile {
@@ -339,9 +348,9 @@ impl Profile {
 
     /// Whether the segment from `p` to the camera at `c` passes through a slab
     /// (walked against the rectangles; `p` is nudged towards the current camera
-    /// by 1e-7 of its distance, off the surface it lies on).
+    /// by [`ON_SURFACE_REL`] of its distance, off the surface it lies on).
     fn blocked_by_scene(&self, c: f64, p: (f64, f64)) -> bool {
-        let p = (p.0 * (1.0 - 1e-7), p.1 * (1.0 - 1e-7));
+        let p = (p.0 * (1.0 - ON_SURFACE_REL), p.1 * (1.0 - ON_SURFACE_REL));
         // World: z up; the camera at height `self.height`.
         let (px, pz) = (p.0, self.height - p.1);
         let (dx, dz) = (c - px, self.height - pz);
@@ -387,9 +396,10 @@ impl Profile {
         for &(x0, x1, top) in &self.slabs {
             for xq in [x0, x1] {
                 let q = (xq, self.height - top);
-                // Above `p` (clear of the roof `p` may lie on) and on the side
-                // the cameras move to.
-                if q.1 < p.1 - 1e-6 * self.height && dir * (q.0 * p.1 - p.0 * q.1) > 0.0 {
+                // Above `p` nudged as in `blocked_by_scene` (clear of the roof
+                // `p` may lie on, not of the wall's top corner just above a
+                // point on a wall) and on the side the cameras move to.
+                if q.1 < p.1 * (1.0 - ON_SURFACE_REL) && dir * (q.0 * p.1 - p.0 * q.1) > 0.0 {
                     let c = (q.0 * p.1 - p.0 * q.1) / (p.1 - q.1);
                     if dir * c < dir * best.0 {
                         best = (c, Some(q));
@@ -457,8 +467,9 @@ proptest! {
             for dir in [1.0f64, -1.0] {
                 let (end, kind) = if dir > 0.0 { (iv.to_m, iv.to) } else { (iv.from_m, iv.from) };
                 let (occ, corner) = p.occlusion_end(dir, pt);
-                // The `f32` depth places `p` within ~1e-7 of its distance; the
-                // tangent over a corner `Δh` above `p` moves by `h/Δh` times that.
+                // The `f32` depth places `p` within 1.2e-7 of its distance and
+                // the walk nudges it by `ON_SURFACE_REL`; the tangent over a
+                // corner `Δh` above `p` moves by `h/Δh` times that.
                 let gain = corner.map_or(1.0, |q| pt.1 / (pt.1 - q.1));
                 let tol = 1e-5 * (occ.abs().min(1e9) + p.height) * gain;
                 if corner.is_some() {
