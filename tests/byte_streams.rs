@@ -335,6 +335,15 @@ fn specimens() -> Vec<MavMessage> {
             vz: 3,
             hdg: 9000,
         }),
+        MavMessage::LOCAL_POSITION_NED(LOCAL_POSITION_NED_DATA {
+            time_boot_ms: 120_101,
+            x: 1.2,
+            y: -0.3,
+            z: -40.0,
+            vx: 10.0,
+            vy: -0.2,
+            vz: 0.03,
+        }),
         MavMessage::ATTITUDE_QUATERNION(ATTITUDE_QUATERNION_DATA {
             time_boot_ms: 120_100,
             q1: 0.9990482,
@@ -430,6 +439,17 @@ fn message() -> impl Strategy<Value = MavMessage> {
                 vy: v[1],
                 vz: v[2],
                 hdg: 0,
+            })
+        }),
+        (any::<u32>(), [f(), f(), f()], [f(), f(), f()]).prop_map(|(t, p, v)| {
+            MavMessage::LOCAL_POSITION_NED(LOCAL_POSITION_NED_DATA {
+                time_boot_ms: t,
+                x: p[0],
+                y: p[1],
+                z: p[2],
+                vx: v[0],
+                vy: v[1],
+                vz: v[2],
             })
         }),
         (any::<u32>(), [f(), f(), f(), f()], [f(), f(), f(), f()]).prop_map(|(t, q, r)| {

@@ -143,6 +143,40 @@ proptest! {
         prop_assert!(b.at(*times.last().unwrap() + 1).is_err(), "horizon 0: nothing past the newest");
     }
 
+    /// Constant acceleration (up to 5 m/s² each way, samples up to 300 ms apart) is followed
+    /// exactly between samples (the cubic through positions and velocities) and past the newest
+    /// (the last two velocities' acceleration), where a chord or the velocity alone would be
+    /// off by `a·Δt²/8` and `a·τ²/2`.
+    #[test]
+    fn pose_buffer_follows_constant_acceleration(
+        v in prop::array::uniform3(-20.0f64..20.0), a in prop::array::uniform3(-5.0f64..5.0),
+        gaps in prop::collection::vec(1u64..300, 3..40), u in 0.0f64..1.0, ahead_ms in 0u64..200,
+    ) {
+        let mut b = PoseBuffer::new(PoseBufferConfig { horizon_ns: 200_000_000, keep_ns: u64::MAX / 4, max_samples: 100 });
+        let (vel, acc) = (DVec3::from_array(v), DVec3::from_array(a));
+        let at = |t: u64| {
+            let s = (t - 1_000_000_000) as f64 * 1e-9;
+            (vel * s + 0.5 * acc * s * s, vel + acc * s)
+        };
+        let mut t = 1_000_000_000u64;
+        let times: Vec<u64> = gaps.iter().map(|g| { t += g * 1_000_000; t }).collect();
+        for &t in &times {
+            let (pos, v) = at(t);
+            b.push_position(PositionSample { time_ns: t, pos_ned_m: pos, vel_ned_mps: v }).unwrap();
+            b.push_attitude(AttitudeSample { time_ns: t, q: DQuat::IDENTITY, rates_rps: DVec3::ZERO }).unwrap();
+        }
+        let k = times.len() / 2;
+        let (t0, t1) = (times[k - 1], times[k]);
+        let tq = t0 + ((t1 - t0) as f64 * u) as u64;
+        let p = b.at(tq).unwrap();
+        prop_assert!((p.pos_ned_m - at(tq).0).length() < 1e-6, "{} {}", p.pos_ned_m, at(tq).0);
+        prop_assert!((p.vel_ned_mps - at(tq).1).length() < 1e-6);
+        let te = times.last().unwrap() + ahead_ms * 1_000_000;
+        let p = b.at(te).unwrap();
+        prop_assert!((p.pos_ned_m - at(te).0).length() < 1e-6, "{} {}", p.pos_ned_m, at(te).0);
+        prop_assert!((p.vel_ned_mps - at(te).1).length() < 1e-6);
+    }
+
     /// A track within tolerance is never flagged; a jump beyond it always is, and is not followed.
     #[test]
     fn glitch_gate_flags_jumps_only(

@@ -218,6 +218,14 @@ pub async fn estimator_loop(
                 reason: "no position from the autopilot yet".into(),
             },
             Some(p) => {
+                // The last capture's position, once later samples place it: the trigger
+                // measures the interval from there, not from the pose extrapolated then.
+                if let Some((seq, at_ns)) = p.unlocated_capture() {
+                    match ctx.link.pose_at_mono_ns(at_ns).await {
+                        Ok(l) if l.extrapolated_ns == 0 => p.capture_located(seq, l.pos_ned_m),
+                        _ => {}
+                    }
+                }
                 let pose = ctx.link.pose_at_mono_ns(t).await.map_err(|e| e.to_string());
                 let boot_us = ctx.link.boot_ns_at_mono_ns(t).await.map(|ns| ns / 1000);
                 p.on_frame(FrameInput {

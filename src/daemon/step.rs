@@ -101,6 +101,17 @@ impl Pipeline {
         self.decision.set_last_seq(seq);
     }
 
+    /// The last capture whose position the trigger still takes from an extrapolated pose:
+    /// its number and its frame's instant.
+    pub fn unlocated_capture(&self) -> Option<(u64, u64)> {
+        self.decision.unlocated_capture()
+    }
+
+    /// Capture `seq`'s position from an interpolated pose (`decision::Pipeline::capture_located`).
+    pub fn capture_located(&mut self, seq: u64, pos_ned_m: glam::DVec3) {
+        self.decision.capture_located(seq, pos_ned_m);
+    }
+
     pub fn params(&self) -> &StepParams {
         &self.params
     }

@@ -66,6 +66,13 @@ pub struct LinkHealth {
     pub last_rx_mono_ns: u64,
     pub last_position_rx_mono_ns: u64,
     pub positions_accepted: u64,
+    /// Of those, positions from LOCAL_POSITION_NED carried into the link's frame (finer than
+    /// GLOBAL_POSITION_INT's 1e-7°; the global stream serves when none comes).
+    pub local_positions: u64,
+    /// LOCAL_POSITION_NED samples dropped for disagreeing with the accepted global track.
+    pub local_disagreements: u64,
+    /// Times the offset to the autopilot's local frame restarted after a jump.
+    pub local_offset_restarts: u64,
     pub rejected_time: u64,
     pub rejected_position: u64,
     /// Positions not newer than the newest kept (never expected on an ordered link).

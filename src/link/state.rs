@@ -9,6 +9,7 @@ use super::{LinkEvent, LinkHealth, VehicleState};
 use crate::core::allowlist::Trust;
 use crate::core::geo::{Geodetic, LocalFrame};
 use crate::core::glitch::{GlitchConfig, GlitchGate, Verdict};
+use crate::core::localpos::{LocalConfig, LocalOutcome, LocalTrack, NedSample};
 use crate::core::pose::{
     AttitudeSample, Pose, PoseBuffer, PoseBufferConfig, PoseError, PositionSample, PushError,
 };
@@ -135,6 +136,8 @@ pub struct Tracker {
     pub sync: TimeSync,
     poses: PoseBuffer,
     gate: GlitchGate,
+    /// LOCAL_POSITION_NED carried into `frame` (finer than GLOBAL_POSITION_INT's 1e-7°).
+    local: LocalTrack,
     frame: Option<LocalFrame>,
     /// Where `frame` came from (set together).
     anchor: Option<AnchorSource>,
@@ -169,7 +172,12 @@ impl Tracker {
             reanchor_after_ns: cfg.glitch_reanchor.as_nanos() as u64,
             ..GlitchConfig::default()
         });
+        let local = LocalTrack::new(LocalConfig {
+            check_tolerance_m: cfg.glitch_tolerance_m,
+            ..LocalConfig::default()
+        });
         Tracker {
+            local,
             frame: cfg.home.map(LocalFrame::new),
             anchor: cfg.home.map(|_| AnchorSource::Config),
             gps_fix: None,
@@ -303,6 +311,8 @@ impl Tracker {
         };
         self.frame = Some(new);
         self.anchor = Some(source);
+        // The offset to the autopilot's local frame was in the old frame.
+        self.local.reset();
         self.health.origin_anchors += 1;
         if let Some(s) = self.state.as_mut() {
             s.pos_ned_m = new.to_ned(s.position);
@@ -337,6 +347,7 @@ impl Tracker {
     fn on_reboot(&mut self, out: &mut Vec<Reaction>) {
         self.poses.clear();
         self.gate.reset();
+        self.local.reset();
         self.outstanding.clear();
         self.health.reboots += 1;
         self.health.synced = false;
@@ -465,6 +476,9 @@ impl Tracker {
             MavMessage::GLOBAL_POSITION_INT(p) if from_autopilot => {
                 self.on_position(p, rx_ns, &mut out)
             }
+            MavMessage::LOCAL_POSITION_NED(p) if from_autopilot => {
+                self.on_local_position(p, rx_ns, &mut out)
+            }
             MavMessage::ATTITUDE_QUATERNION(a) if from_autopilot => {
                 if !self.time_ok(a.time_boot_ms, rx_ns, &mut out) {
                     return out;
@@ -496,6 +510,16 @@ impl Tracker {
                 if from_autopilot
                     && a.command == MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL
                     && a.result == MavResult::MAV_RESULT_ACCEPTED =>
+            {
+                self.pending_rates.pop_front();
+                self.health.rates_acked = self.pending_rates.is_empty();
+            }
+            // LOCAL_POSITION_NED is optional: refused, it is not asked again (acks come in
+            // the order of the requests).
+            MavMessage::COMMAND_ACK(a)
+                if from_autopilot
+                    && a.command == MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL
+                    && self.pending_rates.front() == Some(&32) =>
             {
                 self.pending_rates.pop_front();
                 self.health.rates_acked = self.pending_rates.is_empty();
@@ -626,7 +650,8 @@ impl Tracker {
         let pos = DVec3::from_array(frame.to_ned(g));
         let vel = DVec3::new(p.vx as f64, p.vy as f64, p.vz as f64) * 0.01;
         let time_ns = p.time_boot_ms as u64 * 1_000_000;
-        match self.gate.check(time_ns, pos, vel) {
+        let verdict = self.gate.check(time_ns, pos, vel);
+        match verdict {
             Verdict::Accept => {}
             Verdict::Glitch { jump_m } => {
                 self.health.glitch_rejected += 1;
@@ -643,11 +668,92 @@ impl Tracker {
             }
         }
         self.health.glitch_active = false;
+        if matches!(verdict, Verdict::Reanchored { .. }) {
+            self.local.reset();
+        }
+        self.local.on_global(NedSample {
+            time_ns,
+            pos_m: pos,
+            vel_mps: vel,
+        });
+        // While the local stream serves, this sample only keeps its offset and the height.
+        if self.local.active(time_ns) {
+            if let Some(s) = self.state.as_mut() {
+                s.rel_alt_m = self.rel_alt_m;
+            }
+            return;
+        }
         let sample = PositionSample {
             time_ns,
             pos_ned_m: pos,
             vel_ned_mps: vel,
         };
+        self.accept_position(sample, g, p.time_boot_ms, rx_ns, out);
+    }
+
+    /// LOCAL_POSITION_NED: once paired with GLOBAL_POSITION_INT, the position in the link's frame.
+    fn on_local_position(
+        &mut self,
+        p: &LOCAL_POSITION_NED_DATA,
+        rx_ns: u64,
+        out: &mut Vec<Reaction>,
+    ) {
+        if !self.time_ok(p.time_boot_ms, rx_ns, out) {
+            return;
+        }
+        // The global stream decides glitches, and there is no frame before an origin.
+        let Some(frame) = self.frame.filter(|_| !self.health.glitch_active) else {
+            return;
+        };
+        let sample = NedSample {
+            time_ns: p.time_boot_ms as u64 * 1_000_000,
+            pos_m: DVec3::new(p.x as f64, p.y as f64, p.z as f64),
+            vel_mps: DVec3::new(p.vx as f64, p.vy as f64, p.vz as f64),
+        };
+        let s = match self.local.on_local(sample) {
+            LocalOutcome::Position(s) => s,
+            LocalOutcome::Unpaired => return,
+            LocalOutcome::Disagrees { .. } => {
+                self.health.local_disagreements += 1;
+                return;
+            }
+            LocalOutcome::Invalid => {
+                self.health.rejected_position += 1;
+                return;
+            }
+        };
+        self.health.local_offset_restarts = self.local.restarts;
+        // Where the stream switches from global to local samples, one may not be newer.
+        if self
+            .poses
+            .newest_position()
+            .is_some_and(|n| n.time_ns >= s.time_ns)
+        {
+            return;
+        }
+        let g = frame.to_geodetic(s.pos_m.to_array());
+        self.health.local_positions += 1;
+        let sample = PositionSample {
+            time_ns: s.time_ns,
+            pos_ned_m: s.pos_m,
+            vel_ned_mps: s.vel_mps,
+        };
+        self.accept_position(sample, g, p.time_boot_ms, rx_ns, out);
+    }
+
+    /// Keeps a position and publishes it as the vehicle's state.
+    fn accept_position(
+        &mut self,
+        sample: PositionSample,
+        g: Geodetic,
+        time_boot_ms: u32,
+        rx_ns: u64,
+        out: &mut Vec<Reaction>,
+    ) {
+        let Some(frame) = self.frame else {
+            return;
+        };
+        let (time_ns, pos, vel) = (sample.time_ns, sample.pos_ned_m, sample.vel_ned_mps);
         match self.poses.push_position(sample) {
             Ok(()) => {}
             Err(PushError::OutOfOrder) => {
@@ -664,7 +770,7 @@ impl Tracker {
         let mono_ns = self.sync.remote_to_local(time_ns);
         let prev = self.state.take();
         self.state = Some(VehicleState {
-            time_boot_ms: p.time_boot_ms,
+            time_boot_ms,
             mono_ns,
             position: g,
             pos_ned_m: pos.to_array(),
@@ -1243,5 +1349,100 @@ mod origin_tests {
                 ..
             })]
         ));
+    }
+
+    /// LOCAL_POSITION_NED at boot time `boot_ms` in a frame `shift_m` north of HOME, 10 m/s north.
+    fn local_position(boot_ms: u32, north_m: f64, shift_m: f64) -> MavMessage {
+        MavMessage::LOCAL_POSITION_NED(LOCAL_POSITION_NED_DATA {
+            time_boot_ms: boot_ms,
+            x: (north_m - shift_m) as f32,
+            y: 0.0,
+            z: -50.0,
+            vx: 10.0,
+            ..Default::default()
+        })
+    }
+
+    /// The positions kept at `boot_ms`, against the truth (10 m/s north from HOME).
+    fn worst_error_m(t: &Tracker, from_ms: u32, to_ms: u32) -> f64 {
+        (from_ms..to_ms)
+            .step_by(7)
+            .map(|ms| {
+                let p = t.pose_at(local(ms)).expect("a pose").pos_ned_m;
+                (p.x - 10.0 * ms as f64 * 1e-3).abs()
+            })
+            .fold(0.0, f64::max)
+    }
+
+    #[test]
+    fn local_positions_replace_the_quantised_global_ones_and_a_glitch_stops_both() {
+        let (mut global_only, mut both) = (synced(true), synced(true));
+        for t in [&mut global_only, &mut both] {
+            feed(t, &fix(GpsFixType::GPS_FIX_TYPE_3D_FIX), 1_990);
+            feed(t, &origin_msg(0.0, 0.0), 1_995);
+        }
+        // 10 Hz each, the local sample 1 ms after the global one, in a frame 12.3 m north.
+        for k in 0..100u32 {
+            let ms = 2_000 + 100 * k;
+            let north = 10.0 * ms as f64 * 1e-3;
+            for t in [&mut global_only, &mut both] {
+                feed(t, &position(ms, north, 0.0, 50.0, false), ms);
+                feed(t, &attitude(ms), ms);
+            }
+            let north_l = 10.0 * (ms + 1) as f64 * 1e-3;
+            feed(&mut both, &local_position(ms + 1, north_l, 12.3), ms + 1);
+        }
+        assert_eq!(global_only.health.local_positions, 0);
+        assert!(both.health.local_positions >= 98, "{:?}", both.health);
+        assert_eq!(both.health.out_of_order, 0);
+        assert_eq!(both.health.local_disagreements, 0);
+        // GLOBAL_POSITION_INT's 1e-7° is 1.1 cm north: half of it shows between samples; the
+        // local stream (f32 near 80 m: 8 µm) with the offset's mean leaves under a millimetre.
+        let (coarse, fine) = (
+            worst_error_m(&global_only, 8_000, 11_900),
+            worst_error_m(&both, 8_000, 11_900),
+        );
+        assert!(coarse > 0.004, "global only: {coarse} m");
+        assert!(fine < 0.001, "with the local stream: {fine} m");
+        let state = both.state.clone().expect("a state");
+        assert!((state.pos_ned_m[0] - 10.0 * 11_901.0 * 1e-3).abs() < 0.001);
+        assert!((state.rel_alt_m - 50.0).abs() < 1e-9);
+        // A 30 m glitch in both streams: the gate rejects the global samples, and the local
+        // ones are not kept either.
+        let kept = both.health.local_positions;
+        for k in 0..5u32 {
+            let ms = 12_000 + 100 * k;
+            let north = 10.0 * ms as f64 * 1e-3 + 30.0;
+            feed(&mut both, &position(ms, north, 0.0, 50.0, false), ms);
+            feed(
+                &mut both,
+                &local_position(ms + 1, north + 0.01, 12.3),
+                ms + 1,
+            );
+        }
+        assert!(both.health.glitch_active);
+        assert_eq!(both.health.local_positions, kept);
+    }
+
+    #[test]
+    fn a_refused_local_position_rate_leaves_the_rates_acknowledged() {
+        let mut t = synced(true);
+        t.pending_rates = [33, 32, 31].into();
+        let ack = |result| {
+            MavMessage::COMMAND_ACK(COMMAND_ACK_DATA {
+                command: MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL,
+                result,
+                ..Default::default()
+            })
+        };
+        feed(&mut t, &ack(MavResult::MAV_RESULT_ACCEPTED), 2_000);
+        feed(&mut t, &ack(MavResult::MAV_RESULT_UNSUPPORTED), 2_001);
+        assert_eq!(t.pending_rates, VecDeque::from([31]));
+        assert!(!t.health.rates_acked);
+        // Another refusal is not taken for an answer.
+        feed(&mut t, &ack(MavResult::MAV_RESULT_DENIED), 2_002);
+        assert!(!t.health.rates_acked);
+        feed(&mut t, &ack(MavResult::MAV_RESULT_ACCEPTED), 2_003);
+        assert!(t.health.rates_acked);
     }
 }

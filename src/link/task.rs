@@ -449,7 +449,9 @@ impl Link {
     }
 
     async fn request_rates(&mut self, conn: &Conn) {
-        self.tracker.pending_rates = [33, 31].into();
+        // LOCAL_POSITION_NED at the position rate: the finer position where the autopilot
+        // has it (an autopilot that refuses it leaves the global stream to serve).
+        self.tracker.pending_rates = [33, 32, 31].into();
         self.tracker.health.rates_acked = false;
         self.rate_tries = 0;
         self.send_rate_requests(conn).await;
@@ -459,7 +461,7 @@ impl Link {
         let (target_system, target_component) = self.tracker.autopilot.unwrap_or((0, 0));
         let pending: Vec<u32> = self.tracker.pending_rates.iter().copied().collect();
         for id in pending {
-            let hz = if id == 33 {
+            let hz = if id == 33 || id == 32 {
                 self.cfg.position_hz
             } else {
                 self.cfg.attitude_hz

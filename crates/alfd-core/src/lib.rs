@@ -12,6 +12,7 @@ pub mod estimate;
 pub mod geo;
 pub mod glitch;
 pub mod inverse;
+pub mod localpos;
 pub mod occlusion;
 pub mod params;
 pub mod plane;

@@ -10,7 +10,7 @@ use crate::pose::Pose;
 use crate::trigger::{Capture, Decision, Opportunity, Trigger, TriggerParams};
 use crate::visibility::SweepWorkers;
 use crate::{DepthImage, Estimate, Estimator, EstimatorParams, Intrinsics, TrackAxis};
-use glam::DMat3;
+use glam::{DMat3, DVec3};
 
 /// What the decision needs besides the estimator and trigger settings.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -76,6 +76,10 @@ pub struct Pipeline {
     closed_loop: Option<ClosedLoop>,
     /// The configured scan axis, used while the vehicle hovers.
     fixed_axis: TrackAxis,
+    /// The last capture's number, its frame's instant (the caller's clock) and the
+    /// extrapolated pose its odometer reading came from, until its position is located
+    /// ([`Pipeline::capture_located`]).
+    unlocated: Option<(u64, u64, Pose)>,
 }
 
 impl Pipeline {
@@ -89,6 +93,38 @@ impl Pipeline {
             last_ne_m: None,
             seq: 0,
             closed_loop: trigger.closed_loop.then(ClosedLoop::default),
+            unlocated: None,
+        }
+    }
+
+    /// The last capture's number and its frame's instant (`FrameInput::mono_ns`), while its
+    /// position is still the extrapolated one the trigger measured from.
+    pub fn unlocated_capture(&self) -> Option<(u64, u64)> {
+        self.unlocated.map(|(seq, mono_ns, _)| (seq, mono_ns))
+    }
+
+    /// Capture `seq`'s position once the autopilot's later samples place it (interpolated, not
+    /// extrapolated): the trigger measures the interval from there. The pose a frame is decided
+    /// with runs up to one telemetry period past the newest sample, so its error (a few
+    /// millimetres where the acceleration changes) would otherwise enter the next interval.
+    pub fn capture_located(&mut self, seq: u64, pos_ned_m: DVec3) {
+        let Some((s, _, decided)) = self.unlocated else {
+            return;
+        };
+        if s != seq {
+            return;
+        }
+        self.unlocated = None;
+        let v = decided.vel_ned_mps;
+        let speed = v.x.hypot(v.y);
+        if !(speed > 1e-3 && pos_ned_m.is_finite()) {
+            return;
+        }
+        let d = pos_ned_m - decided.pos_ned_m;
+        let along_m = (d.x * v.x + d.y * v.y) / speed;
+        // More than a metre is not a refinement (a moved origin, a re-anchored track).
+        if along_m.abs() <= 1.0 {
+            self.trigger.shift_reference(along_m);
         }
     }
 
@@ -120,6 +156,7 @@ impl Pipeline {
     /// the old frame, is forgotten.
     pub fn origin_moved(&mut self) {
         self.last_ne_m = None;
+        self.unlocated = None;
         if let Some(cl) = &mut self.closed_loop {
             *cl = ClosedLoop::default();
         }
@@ -201,6 +238,8 @@ impl Pipeline {
             }
         };
         self.seq += 1;
+        // An interpolated pose is as good as it gets already.
+        self.unlocated = (pose.extrapolated_ns > 0).then_some((self.seq, f.mono_ns, pose));
         if let (Some(cl), Some(v)) = (&mut self.closed_loop, view) {
             cl.on_capture(v, self.odometer_m);
         }
@@ -348,5 +387,77 @@ mod tests {
         p.origin_moved();
         fly(&mut p, 3, |k| Ok(pose(k, 1000.0 + k as f64)));
         assert_eq!(p.odometer_m(), 5.0);
+    }
+
+    /// A capture decided on an extrapolated pose is measured from where it was once the later
+    /// samples place it: 4 cm further along, the next capture comes 4 cm later; only the last
+    /// capture's location counts, once, and an interpolated pose needs none.
+    #[test]
+    fn the_next_interval_is_measured_from_the_located_capture() {
+        let extrapolated = |k: u64| {
+            Ok(Pose {
+                extrapolated_ns: 50_000_000,
+                ..pose(k, 10.0 * k as f64 / 30.0)
+            })
+        };
+        let (mut plain, mut located) = (pipeline(false), pipeline(false));
+        let first = |p: &mut Pipeline| {
+            let out = fly(p, 1, extrapolated);
+            assert_eq!(decided(&out).len(), 1);
+            p.unlocated_capture()
+                .expect("decided on an extrapolated pose")
+        };
+        let (seq, at_ns) = first(&mut plain);
+        assert_eq!((seq, at_ns), (1, 0));
+        first(&mut located);
+        located.capture_located(7, DVec3::new(0.04, 0.0, -40.0));
+        assert!(
+            located.unlocated_capture().is_some(),
+            "not the last capture"
+        );
+        located.capture_located(1, DVec3::new(0.04, 0.0, -40.0));
+        assert!(located.unlocated_capture().is_none());
+        // A second location of the same capture changes nothing.
+        located.capture_located(1, DVec3::new(0.5, 0.0, -40.0));
+        let next = |p: &mut Pipeline| {
+            let out: Vec<StepOutcome> = (1..300u64)
+                .map(|k| {
+                    let intr = Intrinsics::from_hfov_deg(64, 48, 69.0, None).unwrap();
+                    let ground =
+                        DepthImage::new(64, 48, DepthData::Metres(vec![40.0; 64 * 48])).unwrap();
+                    p.on_frame(FrameInput {
+                        mono_ns: k * PERIOD_NS,
+                        depth: Some(&ground),
+                        intrinsics: &intr,
+                        pose: extrapolated(k),
+                    })
+                })
+                .collect();
+            let d = decided(&out);
+            (
+                d[0].capture.distance_since_last_m.unwrap(),
+                d[0].capture.spacing_m,
+            )
+        };
+        let (flown_plain, spacing) = next(&mut plain);
+        let (flown_located, _) = next(&mut located);
+        // The odometer reads 4 cm less for the same frames: a frame's step is 33 cm, so the
+        // capture lands on the same frame or the next, and the interval it reports is what
+        // was flown from the located capture.
+        assert!(flown_plain <= spacing + 1e-9 && flown_located <= spacing + 1e-9);
+        let frames_plain = ((flown_plain) * 3.0).round();
+        let frames_located = ((flown_located + 0.04) * 3.0).round();
+        assert!(
+            frames_located >= frames_plain,
+            "{flown_plain} {flown_located}"
+        );
+        assert!(
+            ((flown_located + 0.04) * 3.0 - frames_located).abs() < 1e-9,
+            "{flown_located} m from the located capture is not a whole number of frames less 4 cm"
+        );
+        // An interpolated pose is never located again.
+        let mut p = pipeline(false);
+        fly(&mut p, 1, |k| Ok(pose(k, 0.0)));
+        assert!(p.unlocated_capture().is_none());
     }
 }

@@ -143,6 +143,17 @@ impl Trigger {
         Decision::Capture(self.fire(o, Some(travelled)))
     }
 
+    /// The last capture was in fact `shift_m` further along than the odometer said when it
+    /// fired (its position located once a later sample came, against the extrapolated one the
+    /// odometer read): the interval since it is measured from there.
+    pub fn shift_reference(&mut self, shift_m: f64) {
+        if let Some((_, odo)) = self.last.as_mut() {
+            if shift_m.is_finite() {
+                *odo += shift_m;
+            }
+        }
+    }
+
     fn fire(&mut self, o: &Opportunity, travelled: Option<f64>) -> Capture {
         let spacing = self.tightest_m;
         let c = Capture {
