@@ -18,6 +18,34 @@ pub struct SpacingRange {
     pub max_m: f64,
 }
 
+/// Why an interval longer than the truth's spacing was so (the module doc's classes).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ViolationClass {
+    Unavoidable,
+    FirstSight,
+    Avoidable,
+}
+
+/// One interval between consecutive captures longer than the truth's spacing over it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Violation {
+    /// The captures that bound it (manifest `seq`).
+    pub from_seq: u64,
+    pub to_seq: u64,
+    /// Where along the truth track, metres.
+    pub from_along_m: f64,
+    pub to_along_m: f64,
+    /// The smallest truth spacing in force over it, metres.
+    pub truth_spacing_m: f64,
+    /// `(to − from) / truth_spacing_m`.
+    pub ratio: f64,
+    pub class: ViolationClass,
+}
+
+/// Avoidable violations the text summary lists (all are in `summary.json`).
+const LISTED: usize = 5;
+
 /// The acceptance figures of one run (`summary.json`).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Summary {
@@ -40,6 +68,8 @@ pub struct Summary {
     /// Largest `interval / minimum spacing in force` among the violations.
     pub worst_excess_ratio: Option<f64>,
     pub worst_avoidable_excess_ratio: Option<f64>,
+    /// Every violation, in track order: where, by how much, of which class.
+    pub violation_list: Vec<Violation>,
     /// Largest `interval / minimum spacing in force` over all intervals.
     pub max_interval_ratio: Option<f64>,
     /// Intervals with no truth at all to judge them by (no truth samples).
@@ -242,6 +272,7 @@ pub fn summarize(
         avoidable_violations: 0,
         worst_excess_ratio: None,
         worst_avoidable_excess_ratio: None,
+        violation_list: Vec::new(),
         max_interval_ratio: None,
         unjudged_intervals: 0,
         undersampled: captures.iter().filter(|c| c.undersampled).count(),
@@ -281,14 +312,26 @@ pub fn summarize(
             .take_while(|p| p.along_m < cut_m)
             .map(|p| p.spacing_m)
             .reduce(f64::min);
-        if strictly_between(&pts, a, b) == 0 || d <= step_limit_m {
+        let class = if strictly_between(&pts, a, b) == 0 || d <= step_limit_m {
             s.unavoidable_violations += 1;
+            ViolationClass::Unavoidable
         } else if seen_before.is_some_and(|m| feasible(d, m)) {
             s.first_sight_violations += 1;
+            ViolationClass::FirstSight
         } else {
             s.avoidable_violations += 1;
             s.worst_avoidable_excess_ratio = max_opt(s.worst_avoidable_excess_ratio, ratio);
-        }
+            ViolationClass::Avoidable
+        };
+        s.violation_list.push(Violation {
+            from_seq: w[0].seq,
+            to_seq: w[1].seq,
+            from_along_m: a,
+            to_along_m: b,
+            truth_spacing_m: m,
+            ratio,
+            class,
+        });
     }
 
     // The stretch flown with captures; the whole track without any.
@@ -481,8 +524,43 @@ impl Summary {
             let never = self.never_bound();
             (!never.is_empty()).then(|| format!("{:<16}{}", "never bound", never.join("; ")))
         })
+        .chain(self.avoidable_lines())
         .collect::<Vec<_>>()
         .join("\n")
+    }
+
+    /// Where the avoidable violations are (the first few; `summary.json` has them all).
+    fn avoidable_lines(&self) -> Vec<String> {
+        let avoidable: Vec<&Violation> = self
+            .violation_list
+            .iter()
+            .filter(|v| v.class == ViolationClass::Avoidable)
+            .collect();
+        let mut out: Vec<String> = avoidable
+            .iter()
+            .take(LISTED)
+            .map(|v| {
+                format!(
+                    "{:<16}captures {}-{} at {:.2}-{:.2} m: {:.3} m flown against {:.3} m ({:.3}x)",
+                    "avoidable",
+                    v.from_seq,
+                    v.to_seq,
+                    v.from_along_m,
+                    v.to_along_m,
+                    v.to_along_m - v.from_along_m,
+                    v.truth_spacing_m,
+                    v.ratio
+                )
+            })
+            .collect();
+        if avoidable.len() > LISTED {
+            out.push(format!(
+                "{:<16}and {} more (summary.json, violation_list)",
+                "avoidable",
+                avoidable.len() - LISTED
+            ));
+        }
+        out
     }
 
     /// The targets: `(target, met, the figure)`.
@@ -688,6 +766,24 @@ mod tests {
         assert_eq!(s.ideal_captures, Some(11));
         assert_eq!(s.fixed_captures, Some(10));
         assert!(!s.targets()[0].1);
+        // Each listed where it is; the text names the first five and counts the rest.
+        assert_eq!(s.violation_list.len(), 8);
+        let v = s.violation_list[2];
+        assert_eq!(
+            (v.from_seq, v.to_seq, v.class),
+            (3, 4, ViolationClass::Avoidable)
+        );
+        assert!((v.from_along_m - 2.4).abs() < 1e-9 && (v.to_along_m - 3.6).abs() < 1e-9);
+        assert!((v.truth_spacing_m - 1.0).abs() < 1e-12 && (v.ratio - 1.2).abs() < 1e-9);
+        let text = s.render_text();
+        assert!(
+            text.contains("avoidable       captures 3-4 at 2.40-3.60 m: 1.200 m flown against 1.000 m (1.200x)"),
+            "{text}"
+        );
+        assert!(!text.contains("captures 6-7"), "{text}");
+        assert!(text.contains("and 3 more"), "{text}");
+        let json = serde_json::to_value(&s).unwrap();
+        assert_eq!(json["violation_list"][0]["class"], "avoidable");
     }
 
     #[test]
@@ -699,6 +795,12 @@ mod tests {
         assert_eq!(s.ideal_captures, Some(13));
         // Captures every metre cross the dip: [3,4], [4,5], [5,6] are too long.
         assert_eq!(s.violations, 3);
+        let at: Vec<(u64, u64)> = s
+            .violation_list
+            .iter()
+            .map(|v| (v.from_seq, v.to_seq))
+            .collect();
+        assert_eq!(at, [(4, 5), (5, 6), (6, 7)]);
         assert!((s.worst_excess_ratio.unwrap() - 2.0).abs() < 1e-9);
         assert_eq!(s.fixed_spacing_m, Some(0.5));
         assert_eq!(s.fixed_captures, Some(21));
