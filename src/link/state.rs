@@ -506,20 +506,13 @@ impl Tracker {
                     s.gps_fix = g.fix_type as u8;
                 }
             }
+            // Acks come in the order of the requests. LOCAL_POSITION_NED is optional:
+            // refused, it is not asked again.
             MavMessage::COMMAND_ACK(a)
                 if from_autopilot
                     && a.command == MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL
-                    && a.result == MavResult::MAV_RESULT_ACCEPTED =>
-            {
-                self.pending_rates.pop_front();
-                self.health.rates_acked = self.pending_rates.is_empty();
-            }
-            // LOCAL_POSITION_NED is optional: refused, it is not asked again (acks come in
-            // the order of the requests).
-            MavMessage::COMMAND_ACK(a)
-                if from_autopilot
-                    && a.command == MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL
-                    && self.pending_rates.front() == Some(&32) =>
+                    && (a.result == MavResult::MAV_RESULT_ACCEPTED
+                        || self.pending_rates.front() == Some(&32)) =>
             {
                 self.pending_rates.pop_front();
                 self.health.rates_acked = self.pending_rates.is_empty();
