@@ -12,6 +12,7 @@ use alfd::core::attitude::body_to_ned;
 use alfd::daemon::sim::{
     run_sim_on_simulated_time, SimArgs, SimHooks, SimOutcome, SIMULATED_START_UNIX_US,
 };
+use alfd::simreport::ViolationClass;
 use glam::{DMat3, DQuat};
 use std::path::Path;
 
@@ -252,6 +253,20 @@ fn autopilot_distance_mode_sets_the_distance_and_logs_the_autopilots_triggers() 
     let set = out.sim_commands.iter().filter(|c| c.1 == 206).count();
     assert!(set >= 1, "DO_SET_CAM_TRIGG_DIST sent {set} times");
     assert!(out.report.trigger_distances_acked >= 1);
+    // A falling spacing reaches the autopilot at once (a 2-per-second limit
+    // on shorter distances left it capturing up to 2.5x too far apart on
+    // `alfd sim --mode autopilot_distance`): no interval longer than the
+    // truth's spacing where alfd's own frames could have said so.
+    let s = &out.summary;
+    assert_eq!(
+        s.avoidable_violations,
+        0,
+        "{:?}",
+        s.violation_list
+            .iter()
+            .filter(|v| v.class == ViolationClass::Avoidable)
+            .collect::<Vec<_>>()
+    );
     // Every CAMERA_TRIGGER of the autopilot after time sync is in the manifest.
     assert_eq!(out.sim_events_lost, 0);
     assert!(!out.sim_triggers.is_empty());

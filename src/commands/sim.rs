@@ -183,6 +183,16 @@ pub fn run(a: Args) -> Result<ExitCode> {
     if let Some(l) = &r.latency {
         text.push_str(&format!("answered        {l}\n"));
     }
+    // The autopilot's own trigger: how often alfd had to move its distance.
+    if r.trigger_distances_sent > 0 {
+        text.push_str(&format!(
+            "trigger dist    {} DO_SET_CAM_TRIGG_DIST sent ({} triggering once), {} acknowledged, {} autopilot triggers\n",
+            r.trigger_distances_sent,
+            r.trigger_distances_with_capture,
+            r.trigger_distances_acked,
+            r.autopilot_triggers
+        ));
+    }
     text.push_str(&format!(
         "images          {:.1} MB, telemetry.tlog {} messages, exports: geo.txt {} lines, transforms.json {} frames\n",
         out.image_bytes as f64 / 1e6,

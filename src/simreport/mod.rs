@@ -45,7 +45,7 @@ mod summary;
 mod truth;
 
 pub use plot::plots;
-pub use summary::{summarize, SpacingRange, Summary};
+pub use summary::{summarize, SpacingRange, Summary, Violation, ViolationClass};
 pub use truth::{truth_estimates, TruthStream};
 
 use serde::Serialize;

@@ -1,16 +1,24 @@
 //! Setting the autopilot's own distance trigger online (MAV_CMD_DO_SET_CAM_TRIGG_DIST):
-//! when to send a new distance. A shorter spacing is sent at once (the
-//! autopilot would otherwise capture too far apart); a longer one only past a
-//! hysteresis, so estimator noise does not flood the link; sends are rate
-//! limited and repeated until acknowledged. Pure: time is an argument.
+//! when to send a new distance. The distance sent is the wished spacing
+//! shortened by a margin, so estimator noise within the margin sends nothing.
+//! A wish below the distance in force (or on its way) is sent at once, by any
+//! amount and whatever the rate limit: the autopilot would otherwise capture
+//! too far apart, and each such send lowers the distance by at least the
+//! margin, so a falling spacing costs at most one command per estimate. A
+//! longer one waits for a hysteresis and the rate limit, so noise does not
+//! flood the link; unacknowledged commands are repeated. Pure: time is an
+//! argument.
+
+use core::ops::Not;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DistanceSetterParams {
     /// A longer distance is sent only when it exceeds the one in force by this fraction.
     pub hysteresis: f64,
-    /// A shorter distance is sent when it is below the one in force by this fraction.
-    pub shrink_tolerance: f64,
-    /// At most one command per this many seconds (the first is never held).
+    /// The distance sent is the wish shortened by this fraction (in `[0, 1)`).
+    pub margin: f64,
+    /// At most one longer distance or repeat per this many seconds (the first
+    /// and every shorter one are never held).
     pub min_interval_s: f64,
     /// An unacknowledged command is sent again after this long.
     pub ack_timeout_s: f64,
@@ -20,7 +28,9 @@ impl Default for DistanceSetterParams {
     fn default() -> Self {
         DistanceSetterParams {
             hysteresis: 0.15,
-            shrink_tolerance: 0.01,
+            // Twice the frame-to-frame jitter of the spacing on noisy Z16
+            // (about 1 %), so a steady spacing holds one distance.
+            margin: 0.03,
             min_interval_s: 0.5,
             ack_timeout_s: 1.0,
         }
@@ -63,31 +73,35 @@ impl DistanceSetter {
         if !(wanted_m.is_finite() && wanted_m > 0.0 && now_s.is_finite()) {
             return None;
         }
-        let reference = self.pending.map(|(d, _)| d).or(self.in_force_m);
-        let due = match reference {
-            None => true,
-            Some(r) => {
-                wanted_m < r * (1.0 - self.params.shrink_tolerance)
-                    || wanted_m > r * (1.0 + self.params.hysteresis)
-            }
+        let margin = if self.params.margin.is_finite() {
+            self.params.margin.clamp(0.0, 0.5)
+        } else {
+            0.0
         };
+        let d = wanted_m * (1.0 - margin);
+        let reference = self.pending.map(|(d, _)| d).or(self.in_force_m);
+        // Below what the autopilot holds (or will): too far apart from now on.
+        let shorter = reference.is_none_or(|r| wanted_m < r);
+        let longer = reference.is_some_and(|r| d > r * (1.0 + self.params.hysteresis));
         let resend = match self.pending {
             Some((_, at)) => now_s - at >= self.params.ack_timeout_s,
             None => false,
         };
-        if !due && !resend {
+        if !(shorter || longer || resend) {
             return None;
         }
-        if let Some(last) = self.last_sent_s {
-            if now_s - last < self.params.min_interval_s {
-                return None;
+        if !shorter {
+            if let Some(last) = self.last_sent_s {
+                if now_s - last < self.params.min_interval_s {
+                    return None;
+                }
             }
         }
         // A resend carries the newest wish, not the stale one.
-        let d = if due {
-            wanted_m
+        let d = if shorter || longer {
+            d
         } else {
-            self.pending.map_or(wanted_m, |(d, _)| d)
+            self.pending.map_or(d, |(d, _)| d)
         };
         self.pending = Some((d, now_s));
         self.last_sent_s = Some(now_s);
@@ -109,6 +123,19 @@ impl DistanceSetter {
     }
 }
 
+/// Whether a distance command must also trigger once now (its param3). An
+/// autopilot may count the new distance from where the command reaches it
+/// (PX4 does): the interval under way then ends `flown_m + sent_m` after the
+/// last trigger, too long when that exceeds the wish. Otherwise no extra
+/// capture is taken; an unknown `flown_m` triggers (never too far apart).
+pub fn trigger_now(flown_m: Option<f64>, sent_m: f64, wanted_m: f64) -> bool {
+    match flown_m {
+        // NaN in the sum also triggers.
+        Some(f) if f.is_finite() && f >= 0.0 => (f + sent_m <= wanted_m).not(),
+        _ => true,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -117,50 +144,93 @@ mod tests {
         DistanceSetter::new(DistanceSetterParams::default())
     }
 
+    /// The distance sent for a wish: 3 % shorter.
+    fn sent(wanted_m: f64) -> Option<f64> {
+        Some(wanted_m * 0.97)
+    }
+
     #[test]
     fn the_first_distance_goes_at_once_and_holds_once_acknowledged() {
         let mut s = setter();
-        assert_eq!(s.update(0.0, 5.0), Some(5.0));
+        assert_eq!(s.update(0.0, 5.0), sent(5.0));
         s.on_ack(true);
-        assert_eq!(s.in_force_m(), Some(5.0));
-        // Noise within the hysteresis sends nothing.
-        for (k, d) in [5.2, 4.98, 5.6, 5.05].into_iter().enumerate() {
+        assert_eq!(s.in_force_m(), sent(5.0));
+        // Noise within the margin and the hysteresis sends nothing.
+        for (k, d) in [5.2, 4.9, 5.6, 5.05].into_iter().enumerate() {
             assert_eq!(s.update(1.0 + k as f64, d), None, "{d}");
         }
         assert_eq!(s.sent, 1);
     }
 
     #[test]
-    fn shorter_is_sent_promptly_longer_only_past_the_hysteresis() {
+    fn shorter_is_sent_by_any_amount_longer_only_past_the_hysteresis() {
         let mut s = setter();
         s.update(0.0, 5.0);
         s.on_ack(true);
-        assert_eq!(s.update(1.0, 4.0), Some(4.0));
+        // 4.85 m in force: a wish 0.1 % below it is sent (no dead band past
+        // the promise).
+        assert_eq!(s.update(1.0, 4.845), sent(4.845));
         s.on_ack(true);
-        assert_eq!(s.update(2.0, 4.5), None);
-        assert_eq!(s.update(3.0, 4.7), Some(4.7));
+        assert_eq!(s.update(2.0, 5.5), None, "within the hysteresis");
+        assert_eq!(s.update(3.0, 5.8), sent(5.8));
     }
 
     #[test]
-    fn the_rate_limit_holds_then_the_newest_wish_goes() {
+    fn a_falling_spacing_is_followed_at_every_estimate_whatever_the_rate_limit() {
         let mut s = setter();
-        s.update(0.0, 5.0);
+        s.update(0.0, 1.0);
+        s.on_ack(true);
+        // 30 estimates a second, the spacing falling 2 % each, no ack yet for
+        // most: each wish below the last distance sent goes out.
+        let mut wish = 1.0;
+        let mut sends = 0;
+        for k in 1..=30 {
+            wish *= 0.98;
+            let t = k as f64 / 30.0;
+            if let Some(d) = s.update(t, wish) {
+                assert_eq!(d, wish * 0.97);
+                sends += 1;
+            }
+            // Every wish at or above what the autopilot is asked to hold.
+            let asked = s.pending.map(|p| p.0).or(s.in_force_m()).unwrap();
+            assert!(asked <= wish, "{asked} asked for a wish of {wish}");
+        }
+        // Each send lowers the distance by the margin: not one per estimate.
+        assert!((10..=16).contains(&sends), "{sends} sends");
+    }
+
+    #[test]
+    fn the_rate_limit_holds_longer_distances_then_the_newest_wish_goes() {
+        let mut s = setter();
+        s.update(0.0, 2.0);
         s.on_ack(true);
         assert_eq!(s.update(0.1, 3.0), None, "0.1 s after the last send");
-        assert_eq!(s.update(0.3, 2.0), None);
-        assert_eq!(s.update(0.6, 2.5), Some(2.5));
+        assert_eq!(s.update(0.3, 4.0), None);
+        assert_eq!(s.update(0.6, 3.5), sent(3.5));
     }
 
     #[test]
     fn an_unacknowledged_command_is_repeated_and_a_refusal_keeps_the_old_distance() {
         let mut s = setter();
-        assert_eq!(s.update(0.0, 5.0), Some(5.0));
+        assert_eq!(s.update(0.0, 5.0), sent(5.0));
         assert_eq!(s.update(0.5, 5.0), None, "waiting for the ack");
-        assert_eq!(s.update(1.0, 5.0), Some(5.0), "resent after the timeout");
+        assert_eq!(s.update(1.0, 5.0), sent(5.0), "resent after the timeout");
         s.on_ack(false);
         assert_eq!(s.in_force_m(), None);
         assert_eq!(s.refused, 1);
-        assert_eq!(s.update(2.0, 5.0), Some(5.0));
+        assert_eq!(s.update(2.0, 5.0), sent(5.0));
+    }
+
+    #[test]
+    fn a_command_triggers_now_only_where_waiting_would_be_too_far() {
+        // 0.5 m flown, 1.94 m sent for a 2 m wish: the next trigger 2.44 m
+        // after the last one if counted from here.
+        assert!(trigger_now(Some(0.5), 1.94, 2.0));
+        // Just after a trigger: within the margin, no extra capture.
+        assert!(!trigger_now(Some(0.05), 1.94, 2.0));
+        assert!(trigger_now(None, 1.94, 2.0));
+        assert!(trigger_now(Some(f64::NAN), 1.94, 2.0));
+        assert!(trigger_now(Some(0.01), f64::NAN, 2.0));
     }
 
     #[test]
