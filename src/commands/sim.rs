@@ -186,11 +186,8 @@ pub fn run(a: Args) -> Result<ExitCode> {
     // The autopilot's own trigger: how often alfd had to move its distance.
     if r.trigger_distances_sent > 0 {
         text.push_str(&format!(
-            "trigger dist    {} DO_SET_CAM_TRIGG_DIST sent ({} triggering once), {} acknowledged, {} autopilot triggers\n",
-            r.trigger_distances_sent,
-            r.trigger_distances_with_capture,
-            r.trigger_distances_acked,
-            r.autopilot_triggers
+            "trigger dist    {} DO_SET_CAM_TRIGG_DIST sent, {} acknowledged, {} autopilot triggers\n",
+            r.trigger_distances_sent, r.trigger_distances_acked, r.autopilot_triggers
         ));
     }
     text.push_str(&format!(

@@ -13,7 +13,7 @@ use super::camera::{
 use super::step::{capture_record, relocate, RecordInputs};
 use crate::capture::{image_file_name, CaptureMode, CaptureRecord, ImageFormat};
 use crate::config::{CameraCommand, Config};
-use crate::core::distset::{self, DistanceSetter, DistanceSetterParams};
+use crate::core::distset::{DistanceSetter, DistanceSetterParams};
 use crate::core::estimate::Terms;
 use crate::core::geo::LocalFrame;
 use crate::core::pose::Pose;
@@ -60,8 +60,6 @@ pub enum EstimatorView {
     },
     Estimate {
         mono_ns: u64,
-        /// Where the frame was taken (NED, m), if the link knew.
-        pos_ned_m: Option<[f64; 3]>,
         estimate: Box<Estimate>,
     },
 }
@@ -139,8 +137,6 @@ pub struct CoordinatorReport {
     pub camera_commands: u64,
     pub camera_command_failures: u64,
     pub autopilot_triggers: u64,
-    /// Distance commands that also triggered once (param3 = 1).
-    pub trigger_distances_with_capture: u64,
     /// Captures written without their image, or not written (with the reason).
     pub captures_failed: u64,
     pub statustexts: Vec<String>,
@@ -283,11 +279,7 @@ impl Coordinator {
                     self.suspended = Some(reason);
                 }
             }
-            EstimatorView::Estimate {
-                mono_ns,
-                pos_ned_m,
-                estimate,
-            } => {
+            EstimatorView::Estimate { mono_ns, estimate } => {
                 if self.suspended.take().is_some() {
                     self.status(
                         &mut out,
@@ -296,7 +288,7 @@ impl Coordinator {
                     );
                 }
                 let _ = now;
-                self.estimate(&mut out, estimate, mono_ns, pos_ned_m);
+                self.estimate(&mut out, estimate, mono_ns);
             }
         }
         out
@@ -308,13 +300,7 @@ impl Coordinator {
             .unwrap_or(self.config.trigger.fallback_spacing_m)
     }
 
-    fn estimate(
-        &mut self,
-        out: &mut Vec<Action>,
-        e: Box<Estimate>,
-        mono: u64,
-        pos_ned_m: Option<[f64; 3]>,
-    ) {
+    fn estimate(&mut self, out: &mut Vec<Action>, e: Box<Estimate>, mono: u64) {
         let spacing = self.spacing_of(&e);
         let fallback = e.spacing.chosen_m.is_none();
         if fallback != self.fallback {
@@ -344,27 +330,13 @@ impl Coordinator {
         );
         if self.config.capture.mode == CaptureMode::AutopilotDistance {
             if let Some(d) = self.setter.update(mono as f64 * 1e-9, spacing) {
-                // Flown since the autopilot's last trigger (as far as it is
-                // located yet: an older one only makes this longer).
-                let flown_m = match (pos_ned_m, self.last_trigger_ne) {
-                    (Some(p), Some(t)) => Some((p[0] - t[0]).hypot(p[1] - t[1])),
-                    _ => None,
-                };
-                let now = distset::trigger_now(flown_m, d, spacing);
-                self.report.trigger_distances_with_capture += now as u64;
                 out.push(send(command(
                     self.target_system(),
                     1,
                     MavCmd::MAV_CMD_DO_SET_CAM_TRIGG_DIST,
-                    [
-                        d as f32,
-                        0.0,
-                        if now { 1.0 } else { 0.0 },
-                        0.0,
-                        0.0,
-                        0.0,
-                        0.0,
-                    ],
+                    // Trigger once now: firmware-sim counts the new distance
+                    // from here (docs/daemon.md, what each autopilot does).
+                    [d as f32, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0],
                 )));
             }
         }
@@ -1302,7 +1274,6 @@ mod tests {
         co.on_estimate(
             EstimatorView::Estimate {
                 mono_ns: 2 * S,
-                pos_ned_m: None,
                 estimate: Box::new(e),
             },
             now(2 * S),

@@ -279,7 +279,6 @@ pub async fn estimator_loop(
         if let Some(e) = estimate {
             view.send_replace(Some(EstimatorView::Estimate {
                 mono_ns: t,
-                pos_ned_m,
                 estimate: e,
             }));
         }

@@ -49,8 +49,6 @@ pub struct RunReport {
     pub camera_command_failures: u64,
     pub trigger_distances_sent: u64,
     pub trigger_distances_acked: u64,
-    /// Of those sent, how many also triggered once (param3 = 1).
-    pub trigger_distances_with_capture: u64,
     pub autopilot_triggers: u64,
     pub tlog_frames: u64,
     pub exports: Option<ExportSummary>,
@@ -116,7 +114,6 @@ pub(crate) fn report(
         camera_command_failures: c.camera_command_failures,
         trigger_distances_sent: co.setter().sent,
         trigger_distances_acked: co.setter().acked,
-        trigger_distances_with_capture: c.trigger_distances_with_capture,
         autopilot_triggers: c.autopilot_triggers,
         link: link.health().borrow().clone(),
         statustexts: c.statustexts,

@@ -9,8 +9,6 @@
 //! flood the link; unacknowledged commands are repeated. Pure: time is an
 //! argument.
 
-use core::ops::Not;
-
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DistanceSetterParams {
     /// A longer distance is sent only when it exceeds the one in force by this fraction.
@@ -123,19 +121,6 @@ impl DistanceSetter {
     }
 }
 
-/// Whether a distance command must also trigger once now (its param3). An
-/// autopilot may count the new distance from where the command reaches it
-/// (PX4 does): the interval under way then ends `flown_m + sent_m` after the
-/// last trigger, too long when that exceeds the wish. Otherwise no extra
-/// capture is taken; an unknown `flown_m` triggers (never too far apart).
-pub fn trigger_now(flown_m: Option<f64>, sent_m: f64, wanted_m: f64) -> bool {
-    match flown_m {
-        // NaN in the sum also triggers.
-        Some(f) if f.is_finite() && f >= 0.0 => (f + sent_m <= wanted_m).not(),
-        _ => true,
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -219,18 +204,6 @@ mod tests {
         assert_eq!(s.in_force_m(), None);
         assert_eq!(s.refused, 1);
         assert_eq!(s.update(2.0, 5.0), sent(5.0));
-    }
-
-    #[test]
-    fn a_command_triggers_now_only_where_waiting_would_be_too_far() {
-        // 0.5 m flown, 1.94 m sent for a 2 m wish: the next trigger 2.44 m
-        // after the last one if counted from here.
-        assert!(trigger_now(Some(0.5), 1.94, 2.0));
-        // Just after a trigger: within the margin, no extra capture.
-        assert!(!trigger_now(Some(0.05), 1.94, 2.0));
-        assert!(trigger_now(None, 1.94, 2.0));
-        assert!(trigger_now(Some(f64::NAN), 1.94, 2.0));
-        assert!(trigger_now(Some(0.01), f64::NAN, 2.0));
     }
 
     #[test]
