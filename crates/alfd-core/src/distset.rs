@@ -13,7 +13,8 @@
 pub struct DistanceSetterParams {
     /// A longer distance is sent only when it exceeds the one in force by this fraction.
     pub hysteresis: f64,
-    /// The distance sent is the wish shortened by this fraction (in `[0, 1)`).
+    /// The distance sent is the wish shortened by this fraction (taken within
+    /// `[0, 0.5]`; NaN: 0).
     pub margin: f64,
     /// At most one longer distance or repeat per this many seconds (the first
     /// and every shorter one are never held).
@@ -26,8 +27,9 @@ impl Default for DistanceSetterParams {
     fn default() -> Self {
         DistanceSetterParams {
             hysteresis: 0.15,
-            // Twice the frame-to-frame jitter of the spacing on noisy Z16
-            // (about 1 %), so a steady spacing holds one distance.
+            // Meant to sit above the spacing's jitter from frame to frame on
+            // noisy Z16, so a steady spacing holds one distance: set before
+            // any flight was judged with it, and that jitter not measured.
             margin: 0.03,
             min_interval_s: 0.5,
             ack_timeout_s: 1.0,
