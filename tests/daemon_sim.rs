@@ -267,6 +267,12 @@ fn autopilot_distance_mode_sets_the_distance_and_logs_the_autopilots_triggers() 
             .filter(|v| v.class == ViolationClass::Avoidable)
             .collect::<Vec<_>>()
     );
+    // firmware-sim's generic autopilot counts a new distance from the
+    // command: every command triggers once.
+    assert_eq!(
+        out.report.trigger_distances_with_picture,
+        out.report.trigger_distances_sent
+    );
     // Every CAMERA_TRIGGER of the autopilot after time sync is in the manifest.
     assert_eq!(out.sim_events_lost, 0);
     assert!(!out.sim_triggers.is_empty());
@@ -276,6 +282,45 @@ fn autopilot_distance_mode_sets_the_distance_and_logs_the_autopilots_triggers() 
         assert_eq!(r.capture_mode, CaptureMode::AutopilotDistance);
         assert!(r.image.is_none());
     }
+}
+
+/// ArduPilot (`AP_Camera`) counts a new distance from its last picture: alfd
+/// sends it without "trigger once" after the first, so no command costs a
+/// capture, and asks for the tightest spacing of every frame since that
+/// picture, which the interval spans, less the way flown in one of its 50 Hz
+/// checks (firmware-sim fires at the first check past the distance). The
+/// promise holds all the same: without either of the two, avoidable
+/// violations (mutation-checked).
+#[test]
+fn autopilot_distance_on_ardupilot_shoots_only_at_the_distance() {
+    let dir = tempfile::tempdir().unwrap();
+    let a = SimArgs {
+        autopilot: firmware_sim::Autopilot::ArduPilot,
+        ..args(dir.path(), CaptureMode::AutopilotDistance)
+    };
+    let out = run_sim_on_simulated_time(a, SimHooks::default(), std::future::pending())
+        .expect("the sim runs");
+    let m = read_manifest(&out.flight_dir.join("manifest.jsonl")).unwrap();
+    check_against_truth(&out, &m.records);
+    let r = &out.report;
+    assert!(
+        r.trigger_distances_sent >= 2,
+        "{}",
+        r.trigger_distances_sent
+    );
+    assert_eq!(r.trigger_distances_with_picture, 1, "only the first");
+    let s = &out.summary;
+    assert_eq!(
+        s.avoidable_violations,
+        0,
+        "{:?}",
+        s.violation_list
+            .iter()
+            .filter(|v| v.class == ViolationClass::Avoidable)
+            .collect::<Vec<_>>()
+    );
+    assert_eq!(out.sim_events_lost, 0);
+    assert_eq!(m.records.len() as u64, r.autopilot_triggers);
 }
 
 /// Two lanes flown back and forth (`alfd sim --lanes 2`): every lane is flown, the flight ends

@@ -11,6 +11,7 @@ pub mod pty;
 mod sim;
 pub mod trajectory;
 mod transport;
+pub mod trigger;
 pub mod truth;
 
 pub use clock::mono_ns;

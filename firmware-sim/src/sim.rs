@@ -9,6 +9,7 @@ use crate::faults::{delay, mangle, Noise, Rng};
 use crate::geo::ned_to_geodetic;
 use crate::trajectory::{quat_from_rpy, Trajectory};
 use crate::transport::{self, GcsLink, Inbound, LinkCtl, LinkIo, Outgoing};
+use crate::trigger::DistanceTrigger;
 use crate::truth::{Line, Truth};
 use crate::{Fault, SimEvent};
 use mavlink::dialects::ardupilotmega::*;
@@ -261,7 +262,9 @@ struct Engine {
     silent_until: u64,
     quiet_until: u64,
     glitch: Option<([f64; 3], u64)>,
-    trigger: Option<(f64, f64)>,
+    /// The distance trigger, and when it fires next (monotonic ns).
+    trigger: DistanceTrigger,
+    trigger_at: Option<f64>,
     capture_seq: u32,
     /// Milestones already announced: origin set, armed, in the air.
     origin_sent: bool,
@@ -275,6 +278,9 @@ struct Engine {
     pending: Vec<(u64, Fault)>,
     truth: Option<std::io::BufWriter<std::fs::File>>,
 }
+
+/// ArduPilot's `AP_Camera::update` runs at 50 Hz: the distance trigger is checked then.
+const ARDUPILOT_CAMERA_UPDATE_NS: u64 = 20_000_000;
 
 fn period_ms(hz: f64) -> u64 {
     if hz <= 0.0 {
@@ -332,7 +338,8 @@ impl Engine {
             silent_until: 0,
             quiet_until: 0,
             glitch: None,
-            trigger: None,
+            trigger: DistanceTrigger::new(cfg.autopilot),
+            trigger_at: None,
             capture_seq: 0,
             origin_sent: false,
             armed_sent: false,
@@ -487,7 +494,7 @@ impl Engine {
                 t = t.min(self.boot.mono_of_boot_ns(due * 1_000_000));
             }
         }
-        if let Some((_, at)) = self.trigger {
+        if let Some(at) = self.trigger_at {
             t = t.min(at as u64);
         }
         if !self.origin_sent {
@@ -571,13 +578,16 @@ impl Engine {
             }
         }
         self.milestones(io, now);
-        if let Some((dist, at)) = self.trigger {
+        if let Some(at) = self.trigger_at {
             if at as u64 <= now {
-                self.capture(io, at as u64, "trigger");
-                let t = (at - self.shared.start_mono_ns as f64) * 1e-9;
-                let next_path = self.shared.traj.state(t).path_m + dist;
-                let t_next = self.shared.traj.time_at_path(t, next_path);
-                self.trigger = Some((dist, self.shared.start_mono_ns as f64 + t_next * 1e9));
+                let at = at as u64;
+                if self.capture(io, at, "trigger") || self.cfg.autopilot == Autopilot::Generic {
+                    self.trigger.fired(self.path_at(at));
+                    self.schedule_trigger(at);
+                } else {
+                    // ArduPilot keeps trying at its camera's 50 Hz update.
+                    self.trigger_at = Some((at + ARDUPILOT_CAMERA_UPDATE_NS) as f64);
+                }
             }
         }
         let boot_now_ms = self.boot.boot_ns(now) / 1_000_000;
@@ -817,7 +827,46 @@ impl Engine {
         }
     }
 
-    fn capture(&mut self, io: &Links, mono: u64, why: &str) {
+    /// The path flown at `mono` (m).
+    fn path_at(&self, mono: u64) -> f64 {
+        let t = mono.saturating_sub(self.shared.start_mono_ns) as f64 * 1e-9;
+        self.shared.traj.state(t).path_m
+    }
+
+    /// When the distance trigger fires next, from `now`: at once if its point is behind.
+    /// ArduPilot checks the distance at its camera's 50 Hz update, so it fires at the first
+    /// update at or after the point (`ARDUPILOT_CAMERA_UPDATE_NS`), up to 20 ms late.
+    fn schedule_trigger(&mut self, now: u64) {
+        // An infinite distance (a float a ground station may send) is on and never reached.
+        self.trigger_at = self.trigger.next_m().filter(|n| n.is_finite()).map(|next| {
+            let t = now.saturating_sub(self.shared.start_mono_ns) as f64 * 1e-9;
+            let at = if next <= self.shared.traj.state(t).path_m {
+                now as f64
+            } else {
+                self.shared.start_mono_ns as f64 + self.shared.traj.time_at_path(t, next) * 1e9
+            };
+            match self.cfg.autopilot {
+                Autopilot::Generic => at,
+                Autopilot::ArduPilot => {
+                    let boot = self.boot.boot_ns(at.ceil() as u64);
+                    let update =
+                        boot.div_ceil(ARDUPILOT_CAMERA_UPDATE_NS) * ARDUPILOT_CAMERA_UPDATE_NS;
+                    self.boot.mono_of_boot_ns(update).max(at.ceil() as u64) as f64
+                }
+            }
+        });
+    }
+
+    /// A picture a capture command asked for (ArduPilot counts its distance from it).
+    fn command_picture(&mut self, io: &Links, now: u64) {
+        if self.capture(io, now, "capture") && self.trigger.is_on() {
+            self.trigger.other_picture(self.path_at(now));
+            self.schedule_trigger(now);
+        }
+    }
+
+    /// Takes a picture; false when none was taken (MAVLinkCamV2 without its camera).
+    fn capture(&mut self, io: &Links, mono: u64, why: &str) -> bool {
         if self.cfg.camera == CameraBackend::MavlinkCamV2 {
             return self.capture_mavlink_cam(io, mono, why);
         }
@@ -832,18 +881,19 @@ impl Engine {
         let truth = self.shared.truth(mono);
         self.write_truth(why, Some(seq), truth);
         let _ = self.events.send(SimEvent::Capture { mono_ns: mono, seq });
+        true
     }
 
     /// A picture through ArduPilot's MAVLinkCamV2 backend: nothing until the camera is found and
     /// its CAMERA_INFORMATION says it captures images (`trigger_pic` fails, no photo counted);
     /// then IMAGE_START_CAPTURE (one image, sequence number = the next image index) to the
     /// camera, and CAMERA_FEEDBACK to everyone, stamped with GPS time (UNIX µs).
-    fn capture_mavlink_cam(&mut self, io: &Links, mono: u64, why: &str) {
+    fn capture_mavlink_cam(&mut self, io: &Links, mono: u64, why: &str) -> bool {
         let (Some((sys, comp)), Some(flags)) = (self.camera, self.camera_flags) else {
-            return;
+            return false;
         };
         if !flags.contains(CameraCapFlags::CAMERA_CAP_FLAGS_CAPTURE_IMAGE) {
-            return;
+            return false;
         }
         let now = mono_ns();
         let index = self.capture_seq + 1;
@@ -881,6 +931,7 @@ impl Engine {
             mono_ns: mono,
             seq: index,
         });
+        true
     }
 
     /// MAVLinkCamV2's discovery, from what the camera sends on the main link: a HEARTBEAT of
@@ -932,7 +983,8 @@ impl Engine {
                 };
                 self.shared.boot.lock().expect("boot lock").push(self.boot);
                 self.reset_streams();
-                self.trigger = None;
+                self.trigger.off();
+                self.trigger_at = None;
                 self.quiet_until = if silence.is_zero() {
                     0
                 } else {
@@ -1125,28 +1177,22 @@ impl Engine {
                 None => MavResult::MAV_RESULT_UNSUPPORTED,
             },
             MavCmd::MAV_CMD_DO_SET_CAM_TRIGG_DIST => {
-                if c.param1 <= 0.0 {
-                    self.trigger = None;
-                } else {
-                    let dist = c.param1 as f64;
-                    let t = now.saturating_sub(self.shared.start_mono_ns) as f64 * 1e-9;
-                    let here = self.shared.traj.state(t).path_m;
-                    let t_next = self.shared.traj.time_at_path(t, here + dist);
-                    self.trigger = Some((dist, self.shared.start_mono_ns as f64 + t_next * 1e9));
-                    if c.param3 == 1.0 {
-                        self.capture(io, now, "trigger");
-                    }
+                let here = self.path_at(now);
+                self.trigger.set(c.param1 as f64, here);
+                if self.trigger.is_on() && c.param3 == 1.0 && self.capture(io, now, "trigger") {
+                    self.trigger.other_picture(here);
                 }
+                self.schedule_trigger(now);
                 MavResult::MAV_RESULT_ACCEPTED
             }
             MavCmd::MAV_CMD_DO_DIGICAM_CONTROL => {
                 if c.param5 == 1.0 {
-                    self.capture(io, now, "capture");
+                    self.command_picture(io, now);
                 }
                 MavResult::MAV_RESULT_ACCEPTED
             }
             MavCmd::MAV_CMD_IMAGE_START_CAPTURE => {
-                self.capture(io, now, "capture");
+                self.command_picture(io, now);
                 MavResult::MAV_RESULT_ACCEPTED
             }
             _ => MavResult::MAV_RESULT_UNSUPPORTED,

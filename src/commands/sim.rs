@@ -60,6 +60,11 @@ pub struct Args {
     /// East of the previous lane, metres (with --lanes).
     #[arg(long, default_value_t = 40.0)]
     lane_spacing_m: f64,
+    /// Whose behaviour firmware-sim copies where the capture depends on it:
+    /// its HEARTBEAT and how its distance trigger counts (ardupilot: from the
+    /// last picture). The flight itself is the same.
+    #[arg(long, value_enum, default_value_t = SimAutopilot::Generic)]
+    autopilot: SimAutopilot,
     #[arg(long)]
     no_progress: bool,
     /// Fly in real time over a pseudo-terminal, as on the bench (needed by --gcs and
@@ -67,6 +72,12 @@ pub struct Args {
     /// same flight every run.
     #[arg(long)]
     real_time: bool,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum SimAutopilot {
+    Generic,
+    Ardupilot,
 }
 
 pub fn run(a: Args) -> Result<ExitCode> {
@@ -123,6 +134,10 @@ pub fn run(a: Args) -> Result<ExitCode> {
         length_m: a.length_m,
         lanes: a.lanes,
         lane_spacing_m: a.lane_spacing_m,
+        autopilot: match a.autopilot {
+            SimAutopilot::Generic => firmware_sim::Autopilot::Generic,
+            SimAutopilot::Ardupilot => firmware_sim::Autopilot::ArduPilot,
+        },
         seed: 1,
         faults: None,
         depth_outages: Vec::new(),
@@ -186,8 +201,11 @@ pub fn run(a: Args) -> Result<ExitCode> {
     // The autopilot's own trigger: how often alfd had to move its distance.
     if r.trigger_distances_sent > 0 {
         text.push_str(&format!(
-            "trigger dist    {} DO_SET_CAM_TRIGG_DIST sent, {} acknowledged, {} autopilot triggers\n",
-            r.trigger_distances_sent, r.trigger_distances_acked, r.autopilot_triggers
+            "trigger dist    {} DO_SET_CAM_TRIGG_DIST sent ({} also triggering once), {} acknowledged, {} autopilot triggers\n",
+            r.trigger_distances_sent,
+            r.trigger_distances_with_picture,
+            r.trigger_distances_acked,
+            r.autopilot_triggers
         ));
     }
     text.push_str(&format!(

@@ -13,7 +13,7 @@ use super::camera::{
 use super::step::{capture_record, relocate, RecordInputs};
 use crate::capture::{image_file_name, CaptureMode, CaptureRecord, ImageFormat};
 use crate::config::{CameraCommand, Config};
-use crate::core::distset::{DistanceSetter, DistanceSetterParams};
+use crate::core::distset::{Counting, DistanceSetter, DistanceSetterParams, SinceLastPicture};
 use crate::core::estimate::Terms;
 use crate::core::geo::LocalFrame;
 use crate::core::pose::Pose;
@@ -147,6 +147,10 @@ pub struct Coordinator {
     config: Config,
     camera: CameraProtocol,
     setter: DistanceSetter,
+    /// The frames since the autopilot's last picture (its distance counts from there).
+    since_picture: SinceLastPicture,
+    /// The vehicle's ground speed at the last tick.
+    ground_speed_mps: Option<f64>,
     trigger: Trigger,
     intrinsics: Option<Intrinsics>,
     /// Whether alfd has a colour camera whose frames it saves.
@@ -186,6 +190,8 @@ impl Coordinator {
                 config.camera.height as u16,
             )),
             setter: DistanceSetter::new(DistanceSetterParams::default()),
+            since_picture: SinceLastPicture::default(),
+            ground_speed_mps: None,
             trigger: Trigger::new(config.trigger),
             saves_frames: config.capture.mode == CaptureMode::Frame && intrinsics.is_some(),
             intrinsics,
@@ -260,6 +266,13 @@ impl Coordinator {
         self.interval.map(|i| i.next_ns)
     }
 
+    /// The vehicle's ground speed now (kept until the next one known).
+    pub fn set_ground_speed(&mut self, ground_speed_mps: Option<f64>) {
+        if ground_speed_mps.is_some() {
+            self.ground_speed_mps = ground_speed_mps;
+        }
+    }
+
     pub fn on_estimate(&mut self, view: EstimatorView, now: Now) -> Vec<Action> {
         let mut out = Vec::new();
         match view {
@@ -329,14 +342,28 @@ impl Coordinator {
                 .map_or(spacing, |t| t.min(spacing)),
         );
         if self.config.capture.mode == CaptureMode::AutopilotDistance {
-            if let Some(d) = self.setter.update(mono as f64 * 1e-9, spacing) {
+            // Counted from the last picture, the distance spans every frame
+            // since: it must meet the tightest of their spacings, not only
+            // this frame's (a spacing growing past open ground would
+            // otherwise stretch the interval begun before it).
+            self.since_picture.on_spacing(mono, spacing);
+            let counting = self.setter.counting();
+            let wanted = match counting {
+                Counting::FromCommand => spacing,
+                Counting::FromLastPicture => self.since_picture.tightest_m().unwrap_or(spacing),
+            };
+            // Less the way flown while the autopilot has yet to check (the last
+            // second's ground speed).
+            let wish = counting.wish_m(wanted, self.ground_speed_mps.unwrap_or(0.0));
+            if let Some(d) = self.setter.update(mono as f64 * 1e-9, wish) {
+                // Trigger once now where the autopilot counts the new distance
+                // from the command (docs/daemon.md, what each autopilot does).
+                let once = if self.setter.trigger_now() { 1.0 } else { 0.0 };
                 out.push(send(command(
                     self.target_system(),
                     1,
                     MavCmd::MAV_CMD_DO_SET_CAM_TRIGG_DIST,
-                    // Trigger once now: firmware-sim counts the new distance
-                    // from here (docs/daemon.md, what each autopilot does).
-                    [d as f32, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0],
+                    [d as f32, 0.0, once, 0.0, 0.0, 0.0, 0.0],
                 )));
             }
         }
@@ -453,6 +480,7 @@ impl Coordinator {
             LinkEvent::CameraTrigger {
                 mono_ns: Some(t), ..
             } if self.config.capture.mode == CaptureMode::AutopilotDistance => {
+                self.since_picture.on_picture(t);
                 self.locate(&mut out, Asked::Autopilot { from: None }, t);
             }
             LinkEvent::CameraTrigger { mono_ns: None, .. }
@@ -464,11 +492,26 @@ impl Coordinator {
                     "alfd: autopilot trigger before time sync: not logged",
                 );
             }
-            LinkEvent::AutopilotRebooted => self.status(
-                &mut out,
-                MavSeverity::MAV_SEVERITY_WARNING,
-                "alfd: autopilot rebooted, resynchronising time",
-            ),
+            LinkEvent::AutopilotFound { firmware } => {
+                // Only ArduPilot is known to count from its last picture; PX4
+                // and firmware-sim's generic autopilot count from the command.
+                self.setter.set_counting(
+                    if firmware == MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA {
+                        Counting::FromLastPicture
+                    } else {
+                        Counting::FromCommand
+                    },
+                );
+            }
+            LinkEvent::AutopilotRebooted => {
+                // Its trigger distance was set, not saved: send it again.
+                self.setter.forget();
+                self.status(
+                    &mut out,
+                    MavSeverity::MAV_SEVERITY_WARNING,
+                    "alfd: autopilot rebooted, resynchronising time",
+                )
+            }
             LinkEvent::GpsGlitch { jump_m } => {
                 let text = format!("alfd: GPS glitch ({jump_m:.1} m jump), position held");
                 self.status(&mut out, MavSeverity::MAV_SEVERITY_WARNING, &text);
@@ -493,6 +536,8 @@ impl Coordinator {
                     && command == MavCmd::MAV_CMD_IMAGE_START_CAPTURE
                     && self.is_autopilot(from);
                 if autopilot {
+                    // ArduPilot's MAVLinkCamV2: its distance trigger's picture.
+                    self.since_picture.on_picture(now.mono_ns);
                     self.locate(out, Asked::Autopilot { from: Some(from) }, now.mono_ns);
                     return;
                 }
@@ -714,6 +759,7 @@ impl Coordinator {
         ground_speed_mps: Option<f64>,
     ) -> Vec<Action> {
         let mut out = Vec::new();
+        self.set_ground_speed(ground_speed_mps);
         while let Some(mut i) = self.interval.filter(|i| i.next_ns <= now.mono_ns) {
             self.report.command_captures += 1;
             self.locate(&mut out, Asked::Command { from: i.from }, now.mono_ns);
@@ -1293,5 +1339,75 @@ mod tests {
         assert!(co
             .on_tick(now(40 * S + S / 2), storage, 0, Some(9.0))
             .is_empty());
+    }
+
+    /// The DO_SET_CAM_TRIGG_DISTs among `a`: (distance, param3).
+    fn distances(a: &[Action]) -> Vec<(f32, f32)> {
+        a.iter()
+            .filter_map(|a| match a {
+                Action::Send(m) => match m.as_ref() {
+                    MavMessage::COMMAND_LONG(c)
+                        if c.command == MavCmd::MAV_CMD_DO_SET_CAM_TRIGG_DIST =>
+                    {
+                        Some((c.param1, c.param3))
+                    }
+                    _ => None,
+                },
+                _ => None,
+            })
+            .collect()
+    }
+
+    /// Feeds one estimate of `spacing_m` at `t_ns`.
+    fn estimate_at(co: &mut Coordinator, t_ns: u64, spacing_m: f64) -> Vec<Action> {
+        let mut e = Estimate::without_depth(0.0);
+        e.spacing.chosen_m = Some(spacing_m);
+        co.on_estimate(
+            EstimatorView::Estimate {
+                mono_ns: t_ns,
+                estimate: Box::new(e),
+            },
+            now(t_ns),
+        )
+    }
+
+    fn distance_ack(co: &mut Coordinator, t_ns: u64) {
+        co.on_link_event(
+            LinkEvent::CommandAck {
+                command: MavCmd::MAV_CMD_DO_SET_CAM_TRIGG_DIST as u32,
+                result: MavResult::MAV_RESULT_ACCEPTED as u8,
+            },
+            now(t_ns),
+        );
+    }
+
+    /// ArduPilot counts a new distance from its last picture, so only the first
+    /// command triggers once; an autopilot counting from the command gets a
+    /// picture with every one. After a reboot the distance goes again at once.
+    #[test]
+    fn the_distance_command_triggers_once_only_where_the_autopilot_needs_it() {
+        for (firmware, pictures) in [
+            (MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA, [1.0, 0.0, 1.0]),
+            (MavAutopilot::MAV_AUTOPILOT_PX4, [1.0, 1.0, 1.0]),
+        ] {
+            let mut co = coordinator("autopilot_distance", 0);
+            co.on_link_event(LinkEvent::AutopilotFound { firmware }, now(S));
+            let first = distances(&estimate_at(&mut co, 2 * S, 5.0));
+            distance_ack(&mut co, 2 * S + 1);
+            let shorter = distances(&estimate_at(&mut co, 3 * S, 4.0));
+            distance_ack(&mut co, 3 * S + 1);
+            assert!(distances(&estimate_at(&mut co, 4 * S, 4.0)).is_empty());
+            co.on_link_event(LinkEvent::AutopilotRebooted, now(5 * S));
+            let again = distances(&estimate_at(&mut co, 5 * S + 1, 4.0));
+            let got: Vec<f32> = [&first, &shorter, &again]
+                .iter()
+                .map(|d| {
+                    assert_eq!(d.len(), 1, "{firmware:?}: {d:?}");
+                    d[0].1
+                })
+                .collect();
+            assert_eq!(got, pictures, "{firmware:?}");
+            assert!((again[0].0 - 4.0 * 0.97).abs() < 1e-5, "{again:?}");
+        }
     }
 }

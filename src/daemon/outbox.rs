@@ -143,6 +143,14 @@ pub async fn now(link: &LinkHandle) -> Now {
     }
 }
 
+/// The vehicle's horizontal speed in the link's latest state.
+pub fn ground_speed_mps(link: &LinkHandle) -> Option<f64> {
+    link.state()
+        .borrow()
+        .as_ref()
+        .map(|s| s.vel_ned_mps[0].hypot(s.vel_ned_mps[1]))
+}
+
 pub async fn tick(
     co: &mut Coordinator,
     link: &LinkHandle,
@@ -156,11 +164,7 @@ pub async fn tick(
     } else {
         StorageState::from_free_bytes(free)
     };
-    let speed = link
-        .state()
-        .borrow()
-        .as_ref()
-        .map(|s| s.vel_ned_mps[0].hypot(s.vel_ned_mps[1]));
+    let speed = ground_speed_mps(link);
     let skipped = counters.skipped_busy.load(Ordering::Relaxed);
     co.on_tick(now(link).await, storage, skipped, speed)
 }

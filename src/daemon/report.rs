@@ -48,6 +48,8 @@ pub struct RunReport {
     pub camera_commands: u64,
     pub camera_command_failures: u64,
     pub trigger_distances_sent: u64,
+    /// Of those, the ones that also triggered once (param3 = 1).
+    pub trigger_distances_with_picture: u64,
     pub trigger_distances_acked: u64,
     pub autopilot_triggers: u64,
     pub tlog_frames: u64,
@@ -113,6 +115,7 @@ pub(crate) fn report(
         camera_commands: c.camera_commands,
         camera_command_failures: c.camera_command_failures,
         trigger_distances_sent: co.setter().sent,
+        trigger_distances_with_picture: co.setter().sent_with_picture,
         trigger_distances_acked: co.setter().acked,
         autopilot_triggers: c.autopilot_triggers,
         link: link.health().borrow().clone(),

@@ -5,7 +5,7 @@
 
 use super::coordinator::{Coordinator, EstimatorView, Located};
 use super::estimator_task::{Counters, Decided};
-use super::outbox::{now, reserve, sleep_until, tick, written, Outbox};
+use super::outbox::{ground_speed_mps, now, reserve, sleep_until, tick, written, Outbox};
 use super::shutdown::{Shutdown, Stage};
 use super::writer::{Space, Written};
 use crate::link::{LinkEvent, LinkHandle};
@@ -59,7 +59,10 @@ impl Loop {
                 Ok(()) = self.views.changed() => {
                     let v = self.views.borrow_and_update().clone();
                     match v {
-                        Some(v) => co.on_estimate(v, now(link).await),
+                        Some(v) => {
+                            co.set_ground_speed(ground_speed_mps(link));
+                            co.on_estimate(v, now(link).await)
+                        }
                         None => Vec::new(),
                     }
                 }

@@ -55,6 +55,9 @@ pub struct SimArgs {
     /// east of the last; 1: the single line.
     pub lanes: u32,
     pub lane_spacing_m: f64,
+    /// Whose HEARTBEAT and distance-trigger counting firmware-sim copies (only
+    /// those: the vehicle flies the same, with the generic camera backend).
+    pub autopilot: firmware_sim::Autopilot,
     pub seed: u64,
     /// firmware-sim's faults (corruption, drops, scheduled link loss, reboot,
     /// GPS glitch, silence), as in its config.
@@ -158,6 +161,7 @@ impl Default for SimArgs {
             length_m: None,
             lanes: 1,
             lane_spacing_m: 40.0,
+            autopilot: firmware_sim::Autopilot::Generic,
             seed: 1,
             faults: None,
             depth_outages: Vec::new(),
@@ -393,6 +397,7 @@ pub async fn run_sim_with(
             }
         },
         gcs: args.gcs.clone(),
+        autopilot: args.autopilot,
         ..SimConfig::default()
     };
     sc.survey.pattern = firmware_sim::Pattern::Line;

@@ -114,6 +114,11 @@ pub struct LinkHealth {
 #[derive(Clone, Debug, PartialEq)]
 pub enum LinkEvent {
     Synced,
+    /// The autopilot's first HEARTBEAT: its firmware, which decides how it counts a
+    /// distance trigger (`core::distset::Counting`).
+    AutopilotFound {
+        firmware: mavlink::dialects::ardupilotmega::MavAutopilot,
+    },
     AutopilotRebooted,
     GpsGlitch {
         jump_m: f64,

@@ -391,6 +391,9 @@ impl Tracker {
                 if self.autopilot.is_none() {
                     self.autopilot = Some((sysid as u8, h.component_id));
                     out.push(Reaction::RequestRates);
+                    out.push(Reaction::Event(LinkEvent::AutopilotFound {
+                        firmware: hb.autopilot,
+                    }));
                 }
                 self.health.autopilot_heartbeats += 1;
                 self.armed = hb
@@ -917,6 +920,32 @@ mod tests {
         t.on_message(&header(255, 1), &hb, 3_000_000_000);
         assert_eq!(t.autopilot, Some((1, 1)));
         assert_eq!(t.health.autopilot_heartbeats, 1);
+    }
+
+    /// The first HEARTBEAT names the autopilot's firmware (how it counts a distance
+    /// trigger); later ones do not again.
+    #[test]
+    fn the_first_heartbeat_says_which_autopilot() {
+        let mut t = Tracker::new(LinkConfig::for_address("udpin:127.0.0.1:0"));
+        let hb = MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+            autopilot: MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA,
+            ..Default::default()
+        });
+        let found = |r: &Vec<Reaction>| {
+            r.iter()
+                .filter_map(|r| match r {
+                    Reaction::Event(LinkEvent::AutopilotFound { firmware }) => Some(*firmware),
+                    _ => None,
+                })
+                .collect::<Vec<_>>()
+        };
+        let first = t.on_message(&header(1, 1), &hb, 1_000);
+        assert_eq!(
+            found(&first),
+            vec![MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA]
+        );
+        let second = t.on_message(&header(1, 1), &hb, 2_000);
+        assert!(found(&second).is_empty(), "{second:?}");
     }
 
     #[test]

@@ -37,15 +37,69 @@ impl Default for DistanceSetterParams {
     }
 }
 
+/// Where the autopilot counts a new distance from, which decides whether a
+/// command must also take a picture (its param3, "trigger once").
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Counting {
+    /// From where the command arrives (firmware-sim's generic autopilot; an
+    /// autopilot not known): without a picture there, the interval from the
+    /// last one would be the way already flown plus the new distance, so
+    /// every command triggers once.
+    #[default]
+    FromCommand,
+    /// From the last picture, whatever took it (ArduPilot's `AP_Camera`): a
+    /// distance already flown fires at once, so a command needs no picture,
+    /// except while none is known in force (the first, or after a reboot:
+    /// enabling the trigger counts from there). The wish fed to
+    /// [`DistanceSetter::update`] must then be the tightest spacing since the
+    /// last picture, which the interval spans.
+    FromLastPicture,
+}
+
+/// ArduPilot's `AP_Camera::update` runs at 50 Hz: its distance trigger fires
+/// at the first update past the distance.
+pub const ARDUPILOT_CAMERA_UPDATE_S: f64 = 0.02;
+
+/// The shortest distance asked for: below it every update of the autopilot fires.
+pub const DISTANCE_MIN_M: f64 = 0.01;
+
+impl Counting {
+    /// How far past its distance the autopilot may fire at `speed_mps`: the
+    /// way flown in one of its checks (firmware-sim's generic autopilot fires
+    /// at the point; ArduPilot up to one 50 Hz update late).
+    pub fn late_m(self, speed_mps: f64) -> f64 {
+        let v = if speed_mps.is_finite() {
+            speed_mps.max(0.0)
+        } else {
+            0.0
+        };
+        match self {
+            Counting::FromCommand => 0.0,
+            Counting::FromLastPicture => v * ARDUPILOT_CAMERA_UPDATE_S,
+        }
+    }
+
+    /// The wish to ask for so that a picture up to [`Counting::late_m`] late
+    /// still meets `wanted_m` (at least [`DISTANCE_MIN_M`]).
+    pub fn wish_m(self, wanted_m: f64, speed_mps: f64) -> f64 {
+        (wanted_m - self.late_m(speed_mps)).max(DISTANCE_MIN_M)
+    }
+}
+
 #[derive(Debug, Clone, PartialEq)]
 pub struct DistanceSetter {
     params: DistanceSetterParams,
+    counting: Counting,
+    /// Whether the distance `update` last returned should also trigger once.
+    trigger_now: bool,
     /// The distance the autopilot acknowledged.
     in_force_m: Option<f64>,
     /// Sent, not yet acknowledged: (distance, when).
     pending: Option<(f64, f64)>,
     last_sent_s: Option<f64>,
     pub sent: u64,
+    /// Of `sent`, those that also triggered once.
+    pub sent_with_picture: u64,
     pub acked: u64,
     pub refused: u64,
 }
@@ -54,10 +108,13 @@ impl DistanceSetter {
     pub fn new(params: DistanceSetterParams) -> Self {
         DistanceSetter {
             params,
+            counting: Counting::default(),
+            trigger_now: true,
             in_force_m: None,
             pending: None,
             last_sent_s: None,
             sent: 0,
+            sent_with_picture: 0,
             acked: 0,
             refused: 0,
         }
@@ -66,6 +123,29 @@ impl DistanceSetter {
     /// The distance the autopilot has acknowledged.
     pub fn in_force_m(&self) -> Option<f64> {
         self.in_force_m
+    }
+
+    /// How the autopilot counts (learnt from its HEARTBEAT).
+    pub fn set_counting(&mut self, counting: Counting) {
+        self.counting = counting;
+    }
+
+    pub fn counting(&self) -> Counting {
+        self.counting
+    }
+
+    /// Whether the distance `update` last returned should also take a picture
+    /// (the command's param3).
+    pub fn trigger_now(&self) -> bool {
+        self.trigger_now
+    }
+
+    /// The autopilot lost its distance (it rebooted): the next estimate sends
+    /// one at once, as the first.
+    pub fn forget(&mut self) {
+        self.in_force_m = None;
+        self.pending = None;
+        self.last_sent_s = None;
     }
 
     /// Feed the spacing wanted now; returns a distance to send, if one is due.
@@ -103,9 +183,14 @@ impl DistanceSetter {
         } else {
             self.pending.map_or(d, |(d, _)| d)
         };
+        self.trigger_now = match self.counting {
+            Counting::FromCommand => true,
+            Counting::FromLastPicture => self.in_force_m.is_none(),
+        };
         self.pending = Some((d, now_s));
         self.last_sent_s = Some(now_s);
         self.sent += 1;
+        self.sent_with_picture += u64::from(self.trigger_now);
         Some(d)
     }
 
@@ -120,6 +205,56 @@ impl DistanceSetter {
         } else {
             self.refused += 1;
         }
+    }
+}
+
+/// Frames kept to split at a picture that is heard of late: a second at 30 fps.
+const RECENT_FRAMES: usize = 32;
+
+/// The tightest spacing over the frames since the autopilot's last picture,
+/// by the frames' own times: the picture is heard of after some frames taken
+/// after it were estimated (the link's latency), and those belong to the new
+/// interval. Pure: times are arguments.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct SinceLastPicture {
+    /// The newest frames' (time, spacing), oldest first, at most `RECENT_FRAMES`.
+    recent: std::collections::VecDeque<(u64, f64)>,
+    picture_ns: Option<u64>,
+    tightest_m: Option<f64>,
+}
+
+impl SinceLastPicture {
+    /// A frame taken at `mono_ns` wants `spacing_m`.
+    pub fn on_spacing(&mut self, mono_ns: u64, spacing_m: f64) {
+        if !(spacing_m.is_finite() && spacing_m > 0.0) {
+            return;
+        }
+        if self.recent.len() == RECENT_FRAMES {
+            self.recent.pop_front();
+        }
+        self.recent.push_back((mono_ns, spacing_m));
+        if self.picture_ns.is_none_or(|p| mono_ns >= p) {
+            self.tightest_m = Some(self.tightest_m.map_or(spacing_m, |t| t.min(spacing_m)));
+        }
+    }
+
+    /// The autopilot took a picture at `mono_ns` (an older one than the last is ignored).
+    pub fn on_picture(&mut self, mono_ns: u64) {
+        if self.picture_ns.is_some_and(|p| mono_ns <= p) {
+            return;
+        }
+        self.picture_ns = Some(mono_ns);
+        self.tightest_m = self
+            .recent
+            .iter()
+            .filter(|(t, _)| *t >= mono_ns)
+            .map(|(_, s)| *s)
+            .reduce(f64::min);
+    }
+
+    /// The tightest spacing since the last picture (`None`: no frame since).
+    pub fn tightest_m(&self) -> Option<f64> {
+        self.tightest_m
     }
 }
 
@@ -215,5 +350,92 @@ mod tests {
             assert_eq!(s.update(0.0, d), None);
         }
         assert_eq!(s.update(f64::NAN, 3.0), None);
+    }
+
+    #[test]
+    fn a_command_triggers_once_unless_the_autopilot_counts_from_its_last_picture() {
+        // Counting from the command: every distance sent takes a picture.
+        let mut s = setter();
+        s.update(0.0, 5.0);
+        assert!(s.trigger_now());
+        s.on_ack(true);
+        s.update(1.0, 4.0);
+        assert!(s.trigger_now());
+        // Counting from the last picture: only until a distance is known in
+        // force (a lost first command is resent with its picture too).
+        let mut s = setter();
+        s.set_counting(Counting::FromLastPicture);
+        assert_eq!(s.update(0.0, 5.0), sent(5.0));
+        assert!(s.trigger_now());
+        assert_eq!(s.update(1.0, 5.0), sent(5.0), "resent");
+        assert!(s.trigger_now());
+        s.on_ack(true);
+        assert_eq!(s.update(2.0, 4.0), sent(4.0));
+        assert!(!s.trigger_now());
+        s.on_ack(true);
+        assert_eq!(s.update(3.0, 6.0), sent(6.0));
+        assert!(!s.trigger_now());
+    }
+
+    #[test]
+    fn after_a_reboot_the_distance_is_sent_again_at_once() {
+        let mut s = setter();
+        s.set_counting(Counting::FromLastPicture);
+        s.update(0.0, 5.0);
+        s.on_ack(true);
+        s.update(0.2, 4.0);
+        s.on_ack(true);
+        // A steady wish sends nothing while the autopilot holds it.
+        assert_eq!(s.update(0.3, 4.0), None);
+        // Rebooted: it holds nothing. The same wish goes out at once (within
+        // the rate limit of the last send), with a picture, as the first did.
+        s.forget();
+        assert_eq!(s.in_force_m(), None);
+        assert_eq!(s.update(0.4, 4.0), sent(4.0));
+        assert!(s.trigger_now());
+    }
+
+    #[test]
+    fn the_tightest_since_a_picture_counts_the_frames_after_it_heard_of_late() {
+        let mut w = SinceLastPicture::default();
+        for (t, sp) in [(100, 2.0), (133, 0.7), (166, 3.0), (200, 5.0)] {
+            w.on_spacing(t, sp);
+        }
+        assert_eq!(w.tightest_m(), Some(0.7));
+        // A picture at 150 heard of after the frames at 166 and 200: they are its interval's.
+        w.on_picture(150);
+        assert_eq!(w.tightest_m(), Some(3.0));
+        // A late frame from before the picture does not count.
+        w.on_spacing(140, 0.1);
+        assert_eq!(w.tightest_m(), Some(3.0));
+        w.on_spacing(233, 2.5);
+        assert_eq!(w.tightest_m(), Some(2.5));
+        // An older picture heard of later changes nothing.
+        w.on_picture(120);
+        assert_eq!(w.tightest_m(), Some(2.5));
+        // A picture after every frame: nothing since it yet; bad spacings are ignored.
+        w.on_picture(300);
+        assert_eq!(w.tightest_m(), None);
+        w.on_spacing(310, f64::NAN);
+        assert_eq!(w.tightest_m(), None);
+        // Only the newest frames are kept.
+        for k in 0..100u64 {
+            w.on_spacing(400 + k, 1.0 + k as f64);
+        }
+        w.on_picture(400);
+        assert_eq!(w.tightest_m(), Some(1.0 + (100 - RECENT_FRAMES) as f64));
+    }
+
+    #[test]
+    fn an_autopilot_checking_at_50_hz_is_asked_for_its_lateness_less() {
+        let c = Counting::FromLastPicture;
+        assert!((c.late_m(10.0) - 0.2).abs() < 1e-12);
+        assert!((c.wish_m(1.0, 10.0) - 0.8).abs() < 1e-12);
+        // Beyond what it can meet: every update fires.
+        assert_eq!(c.wish_m(0.1, 10.0), DISTANCE_MIN_M);
+        for v in [f64::NAN, -3.0, f64::NEG_INFINITY] {
+            assert_eq!(c.late_m(v), 0.0);
+        }
+        assert_eq!(Counting::FromCommand.wish_m(1.0, 10.0), 1.0);
     }
 }
