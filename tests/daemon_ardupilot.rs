@@ -185,9 +185,9 @@ async fn ardupilot_late_origin_and_take_off_frame_mode() {
 }
 
 /// In `autopilot_distance` mode ArduPilot's MAVLinkCamV2 backend sends alfd one
-/// IMAGE_START_CAPTURE per distance trigger; each must become a manifest line. Needs
-/// IMAGE_START_CAPTURE handled as a capture in `src/daemon/camera.rs`/`run.rs` (built in
-/// parallel), hence ignored until that is merged.
+/// IMAGE_START_CAPTURE per distance trigger; each must become a manifest line. alfd sends
+/// the distance without "trigger once" after the first (ArduPilot counts from its last
+/// picture), so after the first the photos are the distance trigger's own.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn ardupilot_distance_trigger_through_the_mavlink_camera() {
     let f = fly("autopilot_distance").await;
