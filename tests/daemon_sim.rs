@@ -62,6 +62,21 @@ const PIXEL_DEG: f64 = 0.123;
 
 /// Every record's pose is where firmware-sim says the vehicle truly was at the
 /// record's instant, on both clocks.
+/// No interval longer than the truth's spacing where the daemon's own frames
+/// could have said so (the list printed if not).
+fn assert_no_avoidable_violation(out: &SimOutcome) {
+    let s = &out.summary;
+    assert_eq!(
+        s.avoidable_violations,
+        0,
+        "{:?}",
+        s.violation_list
+            .iter()
+            .filter(|v| v.class == ViolationClass::Avoidable)
+            .collect::<Vec<_>>()
+    );
+}
+
 fn check_against_truth(out: &SimOutcome, records: &[CaptureRecord]) {
     assert!(!records.is_empty());
     let mut worst_deg = 0.0_f64;
@@ -257,16 +272,7 @@ fn autopilot_distance_mode_sets_the_distance_and_logs_the_autopilots_triggers() 
     // on shorter distances left it capturing up to 2.5x too far apart on
     // `alfd sim --mode autopilot_distance`): no interval longer than the
     // truth's spacing where alfd's own frames could have said so.
-    let s = &out.summary;
-    assert_eq!(
-        s.avoidable_violations,
-        0,
-        "{:?}",
-        s.violation_list
-            .iter()
-            .filter(|v| v.class == ViolationClass::Avoidable)
-            .collect::<Vec<_>>()
-    );
+    assert_no_avoidable_violation(&out);
     // firmware-sim's generic autopilot counts a new distance from the
     // command: every command triggers once.
     assert_eq!(
@@ -309,16 +315,7 @@ fn autopilot_distance_on_ardupilot_shoots_only_at_the_distance() {
         r.trigger_distances_sent
     );
     assert_eq!(r.trigger_distances_with_picture, 1, "only the first");
-    let s = &out.summary;
-    assert_eq!(
-        s.avoidable_violations,
-        0,
-        "{:?}",
-        s.violation_list
-            .iter()
-            .filter(|v| v.class == ViolationClass::Avoidable)
-            .collect::<Vec<_>>()
-    );
+    assert_no_avoidable_violation(&out);
     assert_eq!(out.sim_events_lost, 0);
     assert_eq!(m.records.len() as u64, r.autopilot_triggers);
 }
