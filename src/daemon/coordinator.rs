@@ -149,7 +149,7 @@ pub struct Coordinator {
     setter: DistanceSetter,
     /// The frames since the autopilot's last picture (its distance counts from there).
     since_picture: SinceLastPicture,
-    /// The vehicle's ground speed at the last tick.
+    /// The vehicle's ground speed, as last known (set with each estimate and tick).
     ground_speed_mps: Option<f64>,
     trigger: Trigger,
     intrinsics: Option<Intrinsics>,
@@ -352,8 +352,8 @@ impl Coordinator {
                 Counting::FromCommand => spacing,
                 Counting::FromLastPicture => self.since_picture.tightest_m().unwrap_or(spacing),
             };
-            // Less the way flown while the autopilot has yet to check (the last
-            // second's ground speed).
+            // Less the way flown while the autopilot has yet to check (at the
+            // link's latest ground speed; none before the first velocity).
             let wish = counting.wish_m(wanted, self.ground_speed_mps.unwrap_or(0.0));
             if let Some(d) = self.setter.update(mono as f64 * 1e-9, wish) {
                 // Trigger once now where the autopilot counts the new distance
