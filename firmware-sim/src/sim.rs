@@ -839,10 +839,10 @@ impl Engine {
     fn schedule_trigger(&mut self, now: u64) {
         // An infinite distance (a float a ground station may send) is on and never reached.
         self.trigger_at = self.trigger.next_m().filter(|n| n.is_finite()).map(|next| {
-            let t = now.saturating_sub(self.shared.start_mono_ns) as f64 * 1e-9;
-            let at = if next <= self.shared.traj.state(t).path_m {
+            let at = if next <= self.path_at(now) {
                 now as f64
             } else {
+                let t = now.saturating_sub(self.shared.start_mono_ns) as f64 * 1e-9;
                 self.shared.start_mono_ns as f64 + self.shared.traj.time_at_path(t, next) * 1e9
             };
             match self.cfg.autopilot {
