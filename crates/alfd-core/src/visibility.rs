@@ -200,7 +200,6 @@ pub struct LineScratch {
     frustum_lo_m: Vec<f64>,
     frustum_hi_m: Vec<f64>,
     ahead: Vec<f64>,
-    behind: Vec<f64>,
     hull: Hull,
 }
 
@@ -222,24 +221,25 @@ struct Hull {
 /// position beyond which each is hidden (`+∞`: no point on that side rises
 /// above it): the tangent from the point (lifted by `margin` in `Y`) to the upper
 /// hull of the points after it (`BEHIND = false`), or, mirrored (`X → −X`),
-/// before it (`BEHIND = true`, reported as the magnitude).
+/// before it (`BEHIND = true`, reported as the magnitude). Given as `put(i, c)`,
+/// once per point, in sweep order (`BEHIND`: increasing `i`).
 ///
 /// A point no later point's lifted self lies under (`Y ≤` the `floor` of the
 /// points swept after it) is never anyone's tangent with `dy > 0`, so it stays
 /// off the hull: on open ground, whose depth noise is under the margin, the
 /// hull holds only what rises above it. Its own tangent is then found by the
 /// walk over the hull as it is (the chain is strictly concave, so the slopes
-/// from a point before it rise, then fall).
+/// from a point before it rise, then fall), from the vertex the last walk
+/// found: a run of ground before a wall asks for the same vertex again and
+/// again.
 fn sweep<const BEHIND: bool>(
     xs: &[f64],
     ys: &[f64],
     margin: f64,
     hull: &mut Hull,
-    out: &mut Vec<f64>,
+    mut put: impl FnMut(usize, f64),
 ) {
     let n = xs.len().min(ys.len());
-    out.clear();
-    out.resize(n, f64::INFINITY);
     let lift = 1.0 + margin;
     // A lower bound of the floor is as good (more points stay on the hull):
     // per block of points, the least lifted `Y` of the block and of every block
@@ -281,6 +281,8 @@ fn sweep<const BEHIND: bool>(
     let mut y_beyond = f64::NEG_INFINITY;
     // The top of the stack, also kept in registers.
     let mut last = (0.0, 0.0);
+    // Stack index of the last tangent found by the walk.
+    let mut tangent_at = usize::MAX;
     for k in 0..n {
         let i = if BEHIND { k } else { n - 1 - k };
         let p = (sign * xs[i], ys[i]);
@@ -297,6 +299,7 @@ fn sweep<const BEHIND: bool>(
             }
         }
         let pl = (p.0, p.1 * lift);
+        let mut hidden_beyond = f64::INFINITY;
         // Otherwise nothing beyond rises above the lifted point, so no tangent
         // has `dy > 0` and this side stays open (open ground, roofs): the walk
         // below would find the same. (`Y` is finite: no NaN to compare.)
@@ -315,21 +318,54 @@ fn sweep<const BEHIND: bool>(
                         (hx[top - c], hy[top - c])
                     }
                 };
-                let mut lo = 0usize;
-                while lo < top.min(4) && !not_above(pl, at(lo + 1), at(lo)) {
-                    lo += 1;
-                }
-                if lo == 4 && lo < top {
-                    let mut hi = top;
+                // `q(c)`: the tangent is at `c` or nearer; false, then true
+                // along the chain (the first true is the tangent; the farthest
+                // vertex has nothing after it).
+                let q = |c: usize| c >= top || not_above(pl, at(c + 1), at(c));
+                // The points off the hull between two changes of it query the
+                // same chain, mostly for the same vertex: start from the last
+                // answer if it is still on the stack, walk a few, bisect the rest.
+                let mut lo = if tangent_at <= top {
+                    top - tangent_at
+                } else {
+                    0
+                };
+                let first_true = |mut lo: usize, mut hi: usize| {
                     while lo < hi {
                         let mid = (lo + hi) / 2;
-                        if not_above(pl, at(mid + 1), at(mid)) {
+                        if q(mid) {
                             hi = mid;
                         } else {
                             lo = mid + 1;
                         }
                     }
+                    lo
+                };
+                if q(lo) {
+                    let mut steps = 0;
+                    while lo > 0 && q(lo - 1) {
+                        lo -= 1;
+                        steps += 1;
+                        if steps == 4 {
+                            lo = first_true(0, lo);
+                            break;
+                        }
+                    }
+                } else {
+                    let mut steps = 0;
+                    loop {
+                        lo += 1;
+                        if q(lo) {
+                            break;
+                        }
+                        steps += 1;
+                        if steps == 4 {
+                            lo = first_true(lo + 1, top);
+                            break;
+                        }
+                    }
                 }
+                tangent_at = top - lo;
                 Some(at(lo))
             } else {
                 (len > 0).then_some(last)
@@ -337,10 +373,11 @@ fn sweep<const BEHIND: bool>(
             if let Some(q) = tangent {
                 let dy = q.1 - pl.1;
                 if dy > 0.0 {
-                    out[i] = (q.0 - p.0).max(0.0) / dy;
+                    hidden_beyond = (q.0 - p.0).max(0.0) / dy;
                 }
             }
         }
+        put(i, hidden_beyond);
         if on_hull {
             hx[len] = p.0;
             hy[len] = p.1;
@@ -356,13 +393,18 @@ fn sweep_run(margin: f64, s: &mut LineScratch, emit: &mut impl FnMut(usize, Inte
     if s.xs.is_empty() {
         return;
     }
-    sweep::<false>(&s.xs, &s.ys, margin, &mut s.hull, &mut s.ahead);
-    sweep::<true>(&s.xs, &s.ys, margin, &mut s.hull, &mut s.behind);
-    let (ahead, behind) = (&s.ahead[..], &s.behind[..]);
-    let (lo_m, hi_m) = (&s.frustum_lo_m[..], &s.frustum_hi_m[..]);
-    for (k, &j) in s.idx.iter().enumerate() {
+    let n = s.xs.len();
+    s.ahead.resize(n, f64::INFINITY);
+    let ahead = &mut s.ahead[..n];
+    sweep::<false>(&s.xs, &s.ys, margin, &mut s.hull, |i, v| ahead[i] = v);
+    let ahead = &s.ahead[..n];
+    let (lo_m, hi_m, idx) = (&s.frustum_lo_m[..n], &s.frustum_hi_m[..n], &s.idx[..n]);
+    // Behind goes in increasing index: each interval is complete as its
+    // point is swept.
+    sweep::<true>(&s.xs, &s.ys, margin, &mut s.hull, |k, behind| {
+        let j = idx[k];
         let (f_lo, f_hi) = (lo_m[k], hi_m[k]);
-        let (o_lo, o_hi) = (-behind[k], ahead[k]);
+        let (o_lo, o_hi) = (-behind, ahead[k]);
         let (from_m, from) = if o_lo > f_lo {
             (o_lo, End::Occluder)
         } else {
@@ -382,7 +424,7 @@ fn sweep_run(margin: f64, s: &mut LineScratch, emit: &mut impl FnMut(usize, Inte
                 to,
             },
         );
-    }
+    });
 }
 
 /// Calls `emit(j, interval)` for every surface sample `j` of one line of
@@ -888,10 +930,12 @@ mod tests {
     fn sweep(pts: &[(f64, f64)], behind: bool, margin: f64, out: &mut Vec<f64>) {
         let (xs, ys): (Vec<f64>, Vec<f64>) = pts.iter().copied().unzip();
         let mut hull = Hull::default();
+        out.clear();
+        out.resize(xs.len(), f64::NAN);
         if behind {
-            super::sweep::<true>(&xs, &ys, margin, &mut hull, out);
+            super::sweep::<true>(&xs, &ys, margin, &mut hull, |i, v| out[i] = v);
         } else {
-            super::sweep::<false>(&xs, &ys, margin, &mut hull, out);
+            super::sweep::<false>(&xs, &ys, margin, &mut hull, |i, v| out[i] = v);
         }
     }
 
