@@ -325,11 +325,7 @@ fn sweep<const BEHIND: bool>(
                 // The points off the hull between two changes of it query the
                 // same chain, mostly for the same vertex: start from the last
                 // answer if it is still on the stack, walk a few, bisect the rest.
-                let mut lo = if tangent_at <= top {
-                    top - tangent_at
-                } else {
-                    0
-                };
+                let mut lo = top.saturating_sub(tangent_at);
                 let first_true = |mut lo: usize, mut hi: usize| {
                     while lo < hi {
                         let mid = (lo + hi) / 2;
