@@ -320,6 +320,35 @@ fn autopilot_distance_on_ardupilot_shoots_only_at_the_distance() {
     assert_eq!(m.records.len() as u64, r.autopilot_triggers);
 }
 
+/// PX4 (`camera_trigger`) shoots once for every new distance and checks it on
+/// a 50 ms poll. Flown at 4 m/s (a poll is 0.2 m), where the spacing stays
+/// within one poll's reach: every command has its picture, alfd asks the
+/// distance less a poll's way (without it, avoidable violations:
+/// mutation-checked), and every trigger is in the manifest.
+#[test]
+fn autopilot_distance_on_px4_allows_for_its_poll() {
+    let dir = tempfile::tempdir().unwrap();
+    let a = SimArgs {
+        autopilot: firmware_sim::Autopilot::Px4,
+        speed_mps: 4.0,
+        ..args(dir.path(), CaptureMode::AutopilotDistance)
+    };
+    let out = run_sim_on_simulated_time(a, SimHooks::default(), std::future::pending())
+        .expect("the sim runs");
+    let m = read_manifest(&out.flight_dir.join("manifest.jsonl")).unwrap();
+    check_against_truth(&out, &m.records);
+    let r = &out.report;
+    assert!(
+        r.trigger_distances_sent >= 2,
+        "{}",
+        r.trigger_distances_sent
+    );
+    assert_eq!(r.trigger_distances_with_picture, r.trigger_distances_sent);
+    assert_no_avoidable_violation(&out);
+    assert_eq!(out.sim_events_lost, 0);
+    assert_eq!(m.records.len() as u64, r.autopilot_triggers);
+}
+
 /// Two lanes flown back and forth (`alfd sim --lanes 2`): every lane is flown, the flight ends
 /// at the end of the last one, and every pose is where its picture was taken, also while the
 /// vehicle turns 90° between lanes: between 10 Hz attitude samples the pose follows the body

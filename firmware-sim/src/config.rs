@@ -76,8 +76,13 @@ pub struct Survey {
 /// Whose behaviour the simulator copies where autopilots differ.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Autopilot {
-    /// What firmware-sim always did: in the air from the start, origin known, CAMERA_TRIGGER.
+    /// What firmware-sim always did: in the air from the start, origin known, CAMERA_TRIGGER;
+    /// its distance trigger fires at the point. HEARTBEAT says MAV_AUTOPILOT_GENERIC.
     Generic,
+    /// PX4 where it differs from the generic autopilot: its HEARTBEAT, and its distance trigger
+    /// (`camera_trigger`: a new distance shoots once and counts from there, checked on a 50 ms
+    /// poll; docs/link.md). Everything else is the generic autopilot's.
+    Px4,
     /// ArduPilot (ArduCopter), as read in its sources (docs/link.md).
     ArduPilot,
 }
@@ -526,11 +531,12 @@ impl SimConfig {
         let l = raw.link;
         let autopilot = match raw.autopilot.as_deref() {
             None | Some("generic") => Autopilot::Generic,
+            Some("px4") => Autopilot::Px4,
             Some("ardupilot") => Autopilot::ArduPilot,
             Some(other) => {
                 return Err(bad(
                     "autopilot",
-                    format!("`{other}`: expected generic or ardupilot"),
+                    format!("`{other}`: expected generic, px4 or ardupilot"),
                 ))
             }
         };

@@ -2,7 +2,7 @@
 //! to open (for a pty, `serial:<stable symlink>:921600`) and runs until Ctrl-C or SIGTERM.
 
 use clap::Parser;
-use firmware_sim::config::FaultEvent;
+use firmware_sim::config::{Autopilot, FaultEvent};
 use firmware_sim::{FaultKind, SimConfig, Transport};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -54,7 +54,8 @@ struct Args {
     /// (overrides the config's `[gcs_timesync]`).
     #[arg(long, value_name = "OFFSET_MS", allow_hyphen_values = true)]
     gcs_answers_timesync: Option<f64>,
-    /// Behave like `generic` firmware-sim or like `ardupilot` (late origin after lat = lon = 0
+    /// Behave like `generic` firmware-sim, like `px4` (the generic autopilot with PX4's
+    /// HEARTBEAT and distance trigger) or like `ardupilot` (late origin after lat = lon = 0
     /// positions, take-off from the ground, landed state, IMAGE_START_CAPTURE to the camera
     /// and CAMERA_FEEDBACK instead of CAMERA_TRIGGER, a ground station answering TIMESYNC);
     /// overrides the config's `autopilot`.
@@ -178,8 +179,13 @@ fn config(a: &Args) -> Result<SimConfig, String> {
     c.truth_path = a.truth.clone().or(c.truth_path);
     match a.autopilot.as_deref() {
         None | Some("generic") => {}
+        Some("px4") => c.autopilot = Autopilot::Px4,
         Some("ardupilot") => c = c.ardupilot(),
-        Some(p) => return Err(format!("--autopilot: `{p}`: expected generic or ardupilot")),
+        Some(p) => {
+            return Err(format!(
+                "--autopilot: `{p}`: expected generic, px4 or ardupilot"
+            ))
+        }
     }
     Ok(c)
 }

@@ -9,7 +9,7 @@ use crate::faults::{delay, mangle, Noise, Rng};
 use crate::geo::ned_to_geodetic;
 use crate::trajectory::{quat_from_rpy, Trajectory};
 use crate::transport::{self, GcsLink, Inbound, LinkCtl, LinkIo, Outgoing};
-use crate::trigger::DistanceTrigger;
+use crate::trigger::{check_period_ns, DistanceTrigger};
 use crate::truth::{Line, Truth};
 use crate::{Fault, SimEvent};
 use mavlink::dialects::ardupilotmega::*;
@@ -278,9 +278,6 @@ struct Engine {
     pending: Vec<(u64, Fault)>,
     truth: Option<std::io::BufWriter<std::fs::File>>,
 }
-
-/// ArduPilot's `AP_Camera::update` runs at 50 Hz: the distance trigger is checked then.
-const ARDUPILOT_CAMERA_UPDATE_NS: u64 = 20_000_000;
 
 fn period_ms(hz: f64) -> u64 {
     if hz <= 0.0 {
@@ -581,12 +578,17 @@ impl Engine {
         if let Some(at) = self.trigger_at {
             if at as u64 <= now {
                 let at = at as u64;
-                if self.capture(io, at, "trigger") || self.cfg.autopilot == Autopilot::Generic {
-                    self.trigger.fired(self.path_at(at));
-                    self.schedule_trigger(at);
-                } else {
+                let retry = match check_period_ns(self.cfg.autopilot) {
                     // ArduPilot keeps trying at its camera's 50 Hz update.
-                    self.trigger_at = Some((at + ARDUPILOT_CAMERA_UPDATE_NS) as f64);
+                    Some(period) if self.cfg.autopilot == Autopilot::ArduPilot => Some(period),
+                    _ => None,
+                };
+                match (self.capture(io, at, "trigger"), retry) {
+                    (false, Some(period)) => self.trigger_at = Some((at + period) as f64),
+                    _ => {
+                        self.trigger.fired(self.path_at(at));
+                        self.schedule_trigger(at);
+                    }
                 }
             }
         }
@@ -644,7 +646,8 @@ impl Engine {
                 custom_mode: 0,
                 mavtype: MavType::MAV_TYPE_QUADROTOR,
                 autopilot: match self.cfg.autopilot {
-                    Autopilot::Generic => MavAutopilot::MAV_AUTOPILOT_PX4,
+                    Autopilot::Generic => MavAutopilot::MAV_AUTOPILOT_GENERIC,
+                    Autopilot::Px4 => MavAutopilot::MAV_AUTOPILOT_PX4,
                     Autopilot::ArduPilot => MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA,
                 },
                 base_mode: if self.armed(mono) {
@@ -834,27 +837,32 @@ impl Engine {
     }
 
     /// When the distance trigger fires next, from `now`: at once if its point is behind.
-    /// ArduPilot checks the distance at its camera's 50 Hz update, so it fires at the first
-    /// update at or after the point (`ARDUPILOT_CAMERA_UPDATE_NS`), up to 20 ms late.
+    /// ArduPilot and PX4 check the distance on their own clock (`check_period_ns`: 20 and 50 ms),
+    /// so they fire at the first check at or after the point, up to one period late.
     fn schedule_trigger(&mut self, now: u64) {
-        // An infinite distance (a float a ground station may send) is on and never reached.
-        self.trigger_at = self.trigger.next_m().filter(|n| n.is_finite()).map(|next| {
-            let at = if next <= self.path_at(now) {
-                now as f64
-            } else {
-                let t = now.saturating_sub(self.shared.start_mono_ns) as f64 * 1e-9;
-                self.shared.start_mono_ns as f64 + self.shared.traj.time_at_path(t, next) * 1e9
-            };
-            match self.cfg.autopilot {
-                Autopilot::Generic => at,
-                Autopilot::ArduPilot => {
-                    let boot = self.boot.boot_ns(at.ceil() as u64);
-                    let update =
-                        boot.div_ceil(ARDUPILOT_CAMERA_UPDATE_NS) * ARDUPILOT_CAMERA_UPDATE_NS;
-                    self.boot.mono_of_boot_ns(update).max(at.ceil() as u64) as f64
+        // An infinite distance (a float a ground station may send) is on and never reached;
+        // −∞ is PX4's shot at once for a new distance.
+        let period = check_period_ns(self.cfg.autopilot);
+        self.trigger_at = self
+            .trigger
+            .next_m()
+            .filter(|n| *n < f64::INFINITY)
+            .map(|next| {
+                let at = if next <= self.path_at(now) {
+                    now as f64
+                } else {
+                    let t = now.saturating_sub(self.shared.start_mono_ns) as f64 * 1e-9;
+                    self.shared.start_mono_ns as f64 + self.shared.traj.time_at_path(t, next) * 1e9
+                };
+                match period {
+                    None => at,
+                    Some(period) => {
+                        let boot = self.boot.boot_ns(at.ceil() as u64);
+                        let check = boot.div_ceil(period) * period;
+                        self.boot.mono_of_boot_ns(check).max(at.ceil() as u64) as f64
+                    }
                 }
-            }
-        });
+            });
     }
 
     /// A picture a capture command asked for (ArduPilot counts its distance from it).
@@ -1179,7 +1187,11 @@ impl Engine {
             MavCmd::MAV_CMD_DO_SET_CAM_TRIGG_DIST => {
                 let here = self.path_at(now);
                 self.trigger.set(c.param1 as f64, here);
-                if self.trigger.is_on() && c.param3 == 1.0 && self.capture(io, now, "trigger") {
+                if self.trigger.is_on()
+                    && c.param3 == 1.0
+                    && self.trigger.command_shoots_once()
+                    && self.capture(io, now, "trigger")
+                {
                     self.trigger.other_picture(here);
                 }
                 self.schedule_trigger(now);

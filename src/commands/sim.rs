@@ -61,8 +61,10 @@ pub struct Args {
     #[arg(long, default_value_t = 40.0)]
     lane_spacing_m: f64,
     /// Whose behaviour firmware-sim copies where the capture depends on it:
-    /// its HEARTBEAT and how its distance trigger counts (ardupilot: from the
-    /// last picture). The flight itself is the same.
+    /// its HEARTBEAT and its distance trigger (generic: fires at the point;
+    /// px4: a new distance shoots once, checked every 50 ms; ardupilot:
+    /// counted from the last picture, checked at 50 Hz). The flight itself is
+    /// the same.
     #[arg(long, value_enum, default_value_t = SimAutopilot::Generic)]
     autopilot: SimAutopilot,
     #[arg(long)]
@@ -77,6 +79,7 @@ pub struct Args {
 #[derive(Clone, Copy, clap::ValueEnum)]
 enum SimAutopilot {
     Generic,
+    Px4,
     Ardupilot,
 }
 
@@ -136,6 +139,7 @@ pub fn run(a: Args) -> Result<ExitCode> {
         lane_spacing_m: a.lane_spacing_m,
         autopilot: match a.autopilot {
             SimAutopilot::Generic => firmware_sim::Autopilot::Generic,
+            SimAutopilot::Px4 => firmware_sim::Autopilot::Px4,
             SimAutopilot::Ardupilot => firmware_sim::Autopilot::ArduPilot,
         },
         seed: 1,

@@ -13,7 +13,10 @@ use super::camera::{
 use super::step::{capture_record, relocate, RecordInputs};
 use crate::capture::{image_file_name, CaptureMode, CaptureRecord, ImageFormat};
 use crate::config::{CameraCommand, Config};
-use crate::core::distset::{Counting, DistanceSetter, DistanceSetterParams, SinceLastPicture};
+use crate::core::distset::{
+    Counting, DistanceSetter, DistanceSetterParams, SinceLastPicture, ARDUPILOT_CAMERA_UPDATE_S,
+    PX4_TRIGGER_POLL_S,
+};
 use crate::core::estimate::Terms;
 use crate::core::geo::LocalFrame;
 use crate::core::pose::Pose;
@@ -354,7 +357,9 @@ impl Coordinator {
             };
             // Less the way flown while the autopilot has yet to check (at the
             // link's latest ground speed; none before the first velocity).
-            let wish = counting.wish_m(wanted, self.ground_speed_mps.unwrap_or(0.0));
+            let wish = self
+                .setter
+                .wish_m(wanted, self.ground_speed_mps.unwrap_or(0.0));
             if let Some(d) = self.setter.update(mono as f64 * 1e-9, wish) {
                 // Trigger once now where the autopilot counts the new distance
                 // from the command (docs/daemon.md, what each autopilot does).
@@ -495,13 +500,17 @@ impl Coordinator {
             LinkEvent::AutopilotFound { firmware } => {
                 // Only ArduPilot is known to count from its last picture; PX4
                 // and firmware-sim's generic autopilot count from the command.
-                self.setter.set_counting(
-                    if firmware == MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA {
-                        Counting::FromLastPicture
-                    } else {
-                        Counting::FromCommand
-                    },
-                );
+                // Each checks its distance on its own clock (docs/daemon.md);
+                // an autopilot not known is taken to fire at the point.
+                let (counting, check_period_s) = match firmware {
+                    MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA => {
+                        (Counting::FromLastPicture, ARDUPILOT_CAMERA_UPDATE_S)
+                    }
+                    MavAutopilot::MAV_AUTOPILOT_PX4 => (Counting::FromCommand, PX4_TRIGGER_POLL_S),
+                    _ => (Counting::FromCommand, 0.0),
+                };
+                self.setter.set_counting(counting);
+                self.setter.set_check_period_s(check_period_s);
             }
             LinkEvent::AutopilotRebooted => {
                 // Its trigger distance was set, not saved: send it again.
@@ -808,7 +817,12 @@ impl Coordinator {
             }
         }
         if let Some(s) = spacing {
-            let vmax = self.trigger.speed_advice_mps(s);
+            let mut vmax = self.trigger.speed_advice_mps(s);
+            if self.config.capture.mode == CaptureMode::AutopilotDistance {
+                // The autopilot's own checks: beyond this speed one is more than
+                // the spacing (PX4 every 50 ms: 0.3 m is 5.8 m/s).
+                vmax = vmax.min(self.setter.speed_max_mps(s));
+            }
             if let Some(m) = CameraProtocol::named_value(NAME_VMAX, vmax, now.boot_ms) {
                 out.push(send(m));
             }
@@ -918,14 +932,17 @@ mod tests {
     const S: u64 = 1_000_000_000;
 
     fn config(mode: &str) -> Config {
-        let text = format!(
+        Config::from_text(&config_text(mode), "test.toml").expect("a valid config")
+    }
+
+    fn config_text(mode: &str) -> String {
+        format!(
             "[mavlink]\naddress = \"udpin:127.0.0.1:1\"\nsystem_id = 1\ncomponent_id = 100\n\
              accept_system_ids = [1, 245]\n[sim]\nscene = \"scenes/district.toml\"\n\
              [camera]\nsource = \"synthetic\"\nwidth = 64\nheight = 48\nfps = 30.0\n\
              [sampling]\nmodel = \"fixed\"\n[trigger]\nrate_max_hz = 4.0\nfallback_spacing_m = 1.0\n\
              [capture]\ndir = \"/tmp/none\"\nmode = \"{mode}\"\nimage_format = \"png\"\n"
-        );
-        Config::from_text(&text, "test.toml").expect("a valid config")
+        )
     }
 
     fn coordinator(mode: &str, last_seq: u64) -> Coordinator {
@@ -1408,6 +1425,44 @@ mod tests {
                 .collect();
             assert_eq!(got, pictures, "{firmware:?}");
             assert!((again[0].0 - 4.0 * 0.97).abs() < 1e-5, "{again:?}");
+        }
+    }
+
+    /// PX4 checks its distance every 50 ms: alfd asks for the spacing less the
+    /// way flown in one poll, and advises a speed at which a poll stays within
+    /// the spacing (0.3 m: 5.8 m/s). An autopilot not known fires at the point.
+    #[test]
+    fn a_polling_autopilot_is_asked_its_lateness_less_and_advised_its_speed() {
+        let text =
+            config_text("autopilot_distance").replace("rate_max_hz = 4.0", "rate_max_hz = 30.0");
+        let storage = StorageState::from_free_bytes(1 << 30);
+        for (firmware, distance_m, vmax) in [
+            (
+                MavAutopilot::MAV_AUTOPILOT_PX4,
+                (0.3 - 4.0 * 0.05) * 0.97,
+                5.8,
+            ),
+            (MavAutopilot::MAV_AUTOPILOT_GENERIC, 0.3 * 0.97, 9.0),
+        ] {
+            let i = Intrinsics::from_hfov_deg(64, 48, 69.0, None).unwrap();
+            let mut co = Coordinator::new(&Config::from_text(&text, "t.toml").unwrap(), 0, Some(i));
+            co.on_link_event(LinkEvent::AutopilotFound { firmware }, now(S));
+            co.on_tick(now(S), storage, 0, Some(4.0));
+            let d = distances(&estimate_at(&mut co, 2 * S, 0.3));
+            assert_eq!(d.len(), 1, "{firmware:?}");
+            assert!(
+                (d[0].0 as f64 - distance_m).abs() < 1e-6,
+                "{firmware:?}: {d:?}"
+            );
+            let a = co.on_tick(now(3 * S), storage, 0, Some(7.0));
+            let said = named(&a, NAME_VMAX);
+            assert_eq!(said.len(), 1);
+            assert!(
+                (said[0] as f64 - vmax).abs() < 1e-5,
+                "{firmware:?}: {said:?}"
+            );
+            let fast = texts(&a).iter().any(|t| t.contains("too fast"));
+            assert_eq!(fast, vmax < 7.0, "{firmware:?}");
         }
     }
 }

@@ -60,36 +60,36 @@ pub enum Counting {
 /// at the first update past the distance.
 pub const ARDUPILOT_CAMERA_UPDATE_S: f64 = 0.02;
 
-/// The shortest distance asked for: below it every update of the autopilot fires.
+/// PX4's `camera_trigger` runs every 50 ms: its distance trigger fires at the
+/// first poll past the distance.
+pub const PX4_TRIGGER_POLL_S: f64 = 0.05;
+
+/// The shortest distance asked for: below it every check of the autopilot fires.
 pub const DISTANCE_MIN_M: f64 = 0.01;
 
-impl Counting {
-    /// How far past its distance the autopilot may fire at `speed_mps`: the
-    /// way flown in one of its checks (firmware-sim's generic autopilot fires
-    /// at the point; ArduPilot up to one 50 Hz update late).
-    pub fn late_m(self, speed_mps: f64) -> f64 {
-        let v = if speed_mps.is_finite() {
-            speed_mps.max(0.0)
-        } else {
-            0.0
-        };
-        match self {
-            Counting::FromCommand => 0.0,
-            Counting::FromLastPicture => v * ARDUPILOT_CAMERA_UPDATE_S,
-        }
-    }
-
-    /// The wish to ask for so that a picture up to [`Counting::late_m`] late
-    /// still meets `wanted_m` (at least [`DISTANCE_MIN_M`]).
-    pub fn wish_m(self, wanted_m: f64, speed_mps: f64) -> f64 {
-        (wanted_m - self.late_m(speed_mps)).max(DISTANCE_MIN_M)
-    }
+/// How far past its distance an autopilot checking every `check_period_s` may
+/// fire at `speed_mps`: the way flown in one check (0 for an autopilot firing
+/// at the point, as firmware-sim's generic one).
+pub fn late_m(check_period_s: f64, speed_mps: f64) -> f64 {
+    let v = if speed_mps.is_finite() {
+        speed_mps.max(0.0)
+    } else {
+        0.0
+    };
+    let p = if check_period_s.is_finite() {
+        check_period_s.max(0.0)
+    } else {
+        0.0
+    };
+    v * p
 }
 
 #[derive(Debug, Clone, PartialEq)]
 pub struct DistanceSetter {
     params: DistanceSetterParams,
     counting: Counting,
+    /// How often the autopilot checks its distance, s (0: at the point).
+    check_period_s: f64,
     /// Whether the distance `update` last returned should also trigger once.
     trigger_now: bool,
     /// The distance the autopilot acknowledged.
@@ -109,6 +109,7 @@ impl DistanceSetter {
         DistanceSetter {
             params,
             counting: Counting::default(),
+            check_period_s: 0.0,
             trigger_now: true,
             in_force_m: None,
             pending: None,
@@ -132,6 +133,33 @@ impl DistanceSetter {
 
     pub fn counting(&self) -> Counting {
         self.counting
+    }
+
+    /// How often the autopilot checks its distance (learnt from its
+    /// HEARTBEAT: [`ARDUPILOT_CAMERA_UPDATE_S`], [`PX4_TRIGGER_POLL_S`]).
+    pub fn set_check_period_s(&mut self, check_period_s: f64) {
+        self.check_period_s = check_period_s;
+    }
+
+    /// The wish to ask for so that a picture up to one check late (the way
+    /// flown at `speed_mps` in [`late_m`]) still meets `wanted_m`; at least
+    /// [`DISTANCE_MIN_M`].
+    pub fn wish_m(&self, wanted_m: f64, speed_mps: f64) -> f64 {
+        (wanted_m - late_m(self.check_period_s, speed_mps)).max(DISTANCE_MIN_M)
+    }
+
+    /// The fastest ground speed at which the autopilot's checks still meet
+    /// `spacing_m` (the wish stays at or above [`DISTANCE_MIN_M`]); infinite
+    /// for an autopilot firing at the point, 0 for a spacing it cannot ask for.
+    pub fn speed_max_mps(&self, spacing_m: f64) -> f64 {
+        if !(self.check_period_s.is_finite() && self.check_period_s > 0.0) {
+            return f64::INFINITY;
+        }
+        let room_m = spacing_m - DISTANCE_MIN_M;
+        if room_m.is_nan() || room_m <= 0.0 {
+            return 0.0;
+        }
+        room_m / self.check_period_s
     }
 
     /// Whether the distance `update` last returned should also take a picture
@@ -428,14 +456,37 @@ mod tests {
 
     #[test]
     fn an_autopilot_checking_at_50_hz_is_asked_for_its_lateness_less() {
-        let c = Counting::FromLastPicture;
-        assert!((c.late_m(10.0) - 0.2).abs() < 1e-12);
-        assert!((c.wish_m(1.0, 10.0) - 0.8).abs() < 1e-12);
+        let mut s = DistanceSetter::new(DistanceSetterParams::default());
+        // Firing at the point: asked for the spacing itself, at any speed.
+        assert_eq!(s.wish_m(1.0, 10.0), 1.0);
+        assert_eq!(s.speed_max_mps(0.3), f64::INFINITY);
+        s.set_check_period_s(ARDUPILOT_CAMERA_UPDATE_S);
+        assert!((late_m(ARDUPILOT_CAMERA_UPDATE_S, 10.0) - 0.2).abs() < 1e-12);
+        assert!((s.wish_m(1.0, 10.0) - 0.8).abs() < 1e-12);
         // Beyond what it can meet: every update fires.
-        assert_eq!(c.wish_m(0.1, 10.0), DISTANCE_MIN_M);
+        assert_eq!(s.wish_m(0.1, 10.0), DISTANCE_MIN_M);
         for v in [f64::NAN, -3.0, f64::NEG_INFINITY] {
-            assert_eq!(c.late_m(v), 0.0);
+            assert_eq!(late_m(ARDUPILOT_CAMERA_UPDATE_S, v), 0.0);
         }
-        assert_eq!(Counting::FromCommand.wish_m(1.0, 10.0), 1.0);
+        for p in [f64::NAN, -1.0, f64::INFINITY] {
+            assert_eq!(late_m(p, 10.0), 0.0);
+        }
+    }
+
+    #[test]
+    fn a_polling_autopilot_meets_a_spacing_only_below_a_speed() {
+        let mut s = DistanceSetter::new(DistanceSetterParams::default());
+        s.set_check_period_s(PX4_TRIGGER_POLL_S);
+        // 0.3 m with a 50 ms poll: up to 5.8 m/s; at 10 m/s a poll is 0.5 m
+        // and every poll fires (the wish at its floor).
+        let v_max = s.speed_max_mps(0.3);
+        assert!((v_max - 5.8).abs() < 1e-9, "{v_max}");
+        assert!((s.wish_m(0.3, v_max) - DISTANCE_MIN_M).abs() < 1e-12);
+        assert_eq!(s.wish_m(0.3, 10.0), DISTANCE_MIN_M);
+        assert!((s.wish_m(0.3, 4.0) - 0.1).abs() < 1e-12);
+        for bad in [0.0, DISTANCE_MIN_M, -1.0, f64::NAN] {
+            assert_eq!(s.speed_max_mps(bad), 0.0, "{bad}");
+        }
+        assert_eq!(s.speed_max_mps(f64::INFINITY), f64::INFINITY);
     }
 }
