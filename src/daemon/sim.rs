@@ -689,7 +689,7 @@ pub async fn run_sim_with(
         &truth,
         &captures,
         config.trigger.fallback_spacing_m,
-        args.speed_mps / args.fps,
+        opportunity_step_m(&args),
     )
     .with_records(&report.records);
     let plots = simreport::plots(&truth, &daemon, &captures, &flight_dir)
@@ -842,9 +842,47 @@ fn capture_positions(
         .collect()
 }
 
+/// The way between two chances to capture (the summary's `step_limit_m`): a
+/// depth frame's for alfd's own trigger; in `autopilot_distance` at least one
+/// of the autopilot's distance checks (PX4 polls every 50 ms: 0.5 m at
+/// 10 m/s), since it cannot fire between them whatever it was asked.
+fn opportunity_step_m(args: &SimArgs) -> f64 {
+    let frame_m = args.speed_mps / args.fps;
+    match args.mode {
+        CaptureMode::AutopilotDistance => {
+            let check_s = firmware_sim::trigger::check_period_ns(args.autopilot)
+                .map_or(0.0, |ns| ns as f64 * 1e-9);
+            frame_m.max(args.speed_mps * check_s)
+        }
+        _ => frame_m,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The summary's opportunity step: a frame's way, or in autopilot_distance
+    /// one of the autopilot's checks where that is longer (PX4 at 10 m/s).
+    #[test]
+    fn an_autopilot_checking_less_often_than_frames_sets_the_opportunity_step() {
+        use firmware_sim::Autopilot;
+        let step = |mode, autopilot| {
+            opportunity_step_m(&SimArgs {
+                mode,
+                autopilot,
+                speed_mps: 10.0,
+                fps: 30.0,
+                ..SimArgs::default()
+            })
+        };
+        let frame = 10.0 / 30.0;
+        let d = CaptureMode::AutopilotDistance;
+        assert!((step(d, Autopilot::Px4) - 0.5).abs() < 1e-12);
+        assert_eq!(step(d, Autopilot::ArduPilot), frame);
+        assert_eq!(step(d, Autopilot::Generic), frame);
+        assert_eq!(step(CaptureMode::Frame, Autopilot::Px4), frame);
+    }
 
     /// The bench sweeps every pixel: thinned, the district's views-per-point
     /// spacing came out up to 5.3x long (docs/performance.md).

@@ -20,8 +20,10 @@
 //!   them. It is **unavoidable** when no truth sample lies strictly between `a`
 //!   and `b` (1 µm inside each end: the captures were consecutive
 //!   opportunities), or when `b − a ≤ step_limit_m` (at most one opportunity
-//!   step apart, for truth sampled more sparsely than the daemon's frames; pass
-//!   0 for the first rule alone). It is **at first sight** when the interval
+//!   step apart, for truth sampled more sparsely than the daemon's frames, or
+//!   an autopilot's distance trigger checked less often than they come: `alfd
+//!   sim` passes a frame's way, in `autopilot_distance` at least one check's;
+//!   pass 0 for the first rule alone). It is **at first sight** when the interval
 //!   is feasible against every truth sample more than `step_limit_m` before
 //!   `b`: only the frame that closed it (the one the trigger captured at)
 //!   showed the tighter spacing, so no trigger that acts on what it has seen

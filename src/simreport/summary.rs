@@ -312,7 +312,9 @@ pub fn summarize(
             .take_while(|p| p.along_m < cut_m)
             .map(|p| p.spacing_m)
             .reduce(f64::min);
-        let class = if strictly_between(&pts, a, b) == 0 || d <= step_limit_m {
+        // One step apart, with the feasibility test's rounding allowance: an
+        // autopilot's checks 50 ms apart at 10 m/s give 0.5 m + 3e-14.
+        let class = if strictly_between(&pts, a, b) == 0 || feasible(d, step_limit_m) {
             s.unavoidable_violations += 1;
             ViolationClass::Unavoidable
         } else if seen_before.is_some_and(|m| feasible(d, m)) {
@@ -881,6 +883,12 @@ mod tests {
         assert_eq!((s.violations, s.avoidable_violations), (2, 2));
         let s = summarize(&t, &caps, 1.0, 0.3);
         assert_eq!((s.violations, s.unavoidable_violations), (2, 2));
+        // One step but for the rounding of its ends (1.1 − 0.6 = 0.5 + 1e-16),
+        // as PX4's 50 ms checks at 10 m/s give.
+        let caps = vec![capture(1, 0.6), capture(2, 1.1)];
+        assert!(1.1 - 0.6 > 0.5);
+        let s = summarize(&t, &caps, 1.0, 0.5);
+        assert_eq!((s.violations, s.unavoidable_violations), (1, 1));
     }
 
     #[test]
