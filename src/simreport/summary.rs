@@ -886,7 +886,10 @@ mod tests {
         // One step but for the rounding of its ends (1.1 − 0.6 = 0.5 + 1e-16),
         // as PX4's 50 ms checks at 10 m/s give.
         let caps = vec![capture(1, 0.6), capture(2, 1.1)];
-        assert!(1.1 - 0.6 > 0.5);
+        assert!(
+            std::hint::black_box(1.1) - 0.6 > 0.5,
+            "the premise: rounded past 0.5"
+        );
         let s = summarize(&t, &caps, 1.0, 0.5);
         assert_eq!((s.violations, s.unavoidable_violations), (1, 1));
     }
