@@ -299,9 +299,24 @@ fn autopilot_distance_mode_sets_the_distance_and_logs_the_autopilots_triggers() 
 /// violations (mutation-checked).
 #[test]
 fn autopilot_distance_on_ardupilot_shoots_only_at_the_distance() {
+    let (_dir, out) = autopilot_distance_flight(firmware_sim::Autopilot::ArduPilot, 10.0);
+    assert_eq!(
+        out.report.trigger_distances_with_picture, 1,
+        "only the first"
+    );
+}
+
+/// An `autopilot_distance` flight of the tower line on `autopilot` at `speed_mps`, and what
+/// every autopilot must give: every capture where the truth says, at least two distances
+/// sent, no avoidable violation, every trigger in the manifest.
+fn autopilot_distance_flight(
+    autopilot: firmware_sim::Autopilot,
+    speed_mps: f64,
+) -> (tempfile::TempDir, SimOutcome) {
     let dir = tempfile::tempdir().unwrap();
     let a = SimArgs {
-        autopilot: firmware_sim::Autopilot::ArduPilot,
+        autopilot,
+        speed_mps,
         ..args(dir.path(), CaptureMode::AutopilotDistance)
     };
     let out = run_sim_on_simulated_time(a, SimHooks::default(), std::future::pending())
@@ -314,10 +329,10 @@ fn autopilot_distance_on_ardupilot_shoots_only_at_the_distance() {
         "{}",
         r.trigger_distances_sent
     );
-    assert_eq!(r.trigger_distances_with_picture, 1, "only the first");
     assert_no_avoidable_violation(&out);
     assert_eq!(out.sim_events_lost, 0);
     assert_eq!(m.records.len() as u64, r.autopilot_triggers);
+    (dir, out)
 }
 
 /// PX4 (`camera_trigger`) shoots once for every new distance and checks it on
@@ -327,26 +342,9 @@ fn autopilot_distance_on_ardupilot_shoots_only_at_the_distance() {
 /// mutation-checked), and every trigger is in the manifest.
 #[test]
 fn autopilot_distance_on_px4_allows_for_its_poll() {
-    let dir = tempfile::tempdir().unwrap();
-    let a = SimArgs {
-        autopilot: firmware_sim::Autopilot::Px4,
-        speed_mps: 4.0,
-        ..args(dir.path(), CaptureMode::AutopilotDistance)
-    };
-    let out = run_sim_on_simulated_time(a, SimHooks::default(), std::future::pending())
-        .expect("the sim runs");
-    let m = read_manifest(&out.flight_dir.join("manifest.jsonl")).unwrap();
-    check_against_truth(&out, &m.records);
+    let (_dir, out) = autopilot_distance_flight(firmware_sim::Autopilot::Px4, 4.0);
     let r = &out.report;
-    assert!(
-        r.trigger_distances_sent >= 2,
-        "{}",
-        r.trigger_distances_sent
-    );
     assert_eq!(r.trigger_distances_with_picture, r.trigger_distances_sent);
-    assert_no_avoidable_violation(&out);
-    assert_eq!(out.sim_events_lost, 0);
-    assert_eq!(m.records.len() as u64, r.autopilot_triggers);
 }
 
 /// Two lanes flown back and forth (`alfd sim --lanes 2`): every lane is flown, the flight ends
