@@ -94,8 +94,12 @@ enum Asked {
     /// A ground station's command.
     Command { from: (u8, u8) },
     /// The autopilot's distance trigger: CAMERA_TRIGGER, or its IMAGE_START_CAPTURE
-    /// (ArduPilot's MAVLinkCamV2 backend sends one per trigger).
-    Autopilot { from: Option<(u8, u8)> },
+    /// (ArduPilot's MAVLinkCamV2 backend sends one per trigger); with the tightest
+    /// spacing of the frames in the interval it closes (`None`: none heard of).
+    Autopilot {
+        from: Option<(u8, u8)>,
+        tightest_m: Option<f64>,
+    },
 }
 
 /// A capture waiting for its pose.
@@ -166,7 +170,6 @@ pub struct Coordinator {
     terms_said_ns: u64,
     skipped_said: u64,
     last_estimate: Option<Box<Estimate>>,
-    tightest_since_trigger: Option<f64>,
     last_trigger_ne: Option<[f64; 2]>,
     last_capture_ne: Option<[f64; 2]>,
     seq: u64,
@@ -206,7 +209,6 @@ impl Coordinator {
             terms_said_ns: 0,
             skipped_said: 0,
             last_estimate: None,
-            tightest_since_trigger: None,
             last_trigger_ne: None,
             last_capture_ne: None,
             seq: last_seq,
@@ -340,10 +342,6 @@ impl Coordinator {
             let text = format!("alfd: terms {}; bound {bound}", e.terms.names().join(", "));
             self.status(out, MavSeverity::MAV_SEVERITY_INFO, &text);
         }
-        self.tightest_since_trigger = Some(
-            self.tightest_since_trigger
-                .map_or(spacing, |t| t.min(spacing)),
-        );
         if self.config.capture.mode == CaptureMode::AutopilotDistance {
             // Counted from the last picture, the distance spans every frame
             // since: it must meet the tightest of their spacings, not only
@@ -485,8 +483,15 @@ impl Coordinator {
             LinkEvent::CameraTrigger {
                 mono_ns: Some(t), ..
             } if self.config.capture.mode == CaptureMode::AutopilotDistance => {
-                self.since_picture.on_picture(t);
-                self.locate(&mut out, Asked::Autopilot { from: None }, t);
+                let tightest_m = self.since_picture.on_picture(t);
+                self.locate(
+                    &mut out,
+                    Asked::Autopilot {
+                        from: None,
+                        tightest_m,
+                    },
+                    t,
+                );
             }
             LinkEvent::CameraTrigger { mono_ns: None, .. }
                 if self.config.capture.mode == CaptureMode::AutopilotDistance =>
@@ -546,8 +551,12 @@ impl Coordinator {
                     && self.is_autopilot(from);
                 if autopilot {
                     // ArduPilot's MAVLinkCamV2: its distance trigger's picture.
-                    self.since_picture.on_picture(now.mono_ns);
-                    self.locate(out, Asked::Autopilot { from: Some(from) }, now.mono_ns);
+                    let tightest_m = self.since_picture.on_picture(now.mono_ns);
+                    let asked = Asked::Autopilot {
+                        from: Some(from),
+                        tightest_m,
+                    };
+                    self.locate(out, asked, now.mono_ns);
                     return;
                 }
                 self.report.command_captures += 1;
@@ -669,16 +678,16 @@ impl Coordinator {
         };
         let ne = [l.pose.pos_ned_m.x, l.pose.pos_ned_m.y];
         let (capture, mode, requested_by, image_format) = match asked {
-            Asked::Autopilot { from } => {
+            Asked::Autopilot { from, tightest_m } => {
                 self.report.autopilot_triggers += 1;
                 let distance = self
                     .last_trigger_ne
                     .map(|p| (ne[0] - p[0]).hypot(ne[1] - p[1]));
                 self.last_trigger_ne = Some(ne);
-                let tightest = self
-                    .tightest_since_trigger
-                    .take()
-                    .unwrap_or(self.config.trigger.fallback_spacing_m);
+                // The frames of the interval this picture closes, split at its own
+                // instant (a frame estimated after the picture, before it was heard
+                // of, is the next interval's).
+                let tightest = tightest_m.unwrap_or(self.config.trigger.fallback_spacing_m);
                 let spacing = self.setter.in_force_m().unwrap_or(tightest).min(tightest);
                 let capture = Capture {
                     distance_since_last_m: distance,

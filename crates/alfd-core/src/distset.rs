@@ -245,8 +245,9 @@ const RECENT_FRAMES: usize = 32;
 /// interval. Pure: times are arguments.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct SinceLastPicture {
-    /// The newest frames' (time, spacing), oldest first, at most `RECENT_FRAMES`.
-    recent: std::collections::VecDeque<(u64, f64)>,
+    /// The newest frames' (time, spacing, the tightest since the last picture
+    /// up to this frame), oldest first, at most `RECENT_FRAMES`.
+    recent: std::collections::VecDeque<(u64, f64, Option<f64>)>,
     picture_ns: Option<u64>,
     tightest_m: Option<f64>,
 }
@@ -260,24 +261,40 @@ impl SinceLastPicture {
         if self.recent.len() == RECENT_FRAMES {
             self.recent.pop_front();
         }
-        self.recent.push_back((mono_ns, spacing_m));
-        if self.picture_ns.is_none_or(|p| mono_ns >= p) {
+        // A frame from before the last picture, estimated after it was heard
+        // of, belongs to the interval already closed: not counted.
+        let counts = self.picture_ns.is_none_or(|p| mono_ns >= p);
+        if counts {
             self.tightest_m = Some(self.tightest_m.map_or(spacing_m, |t| t.min(spacing_m)));
         }
+        let run = if counts { self.tightest_m } else { None };
+        self.recent.push_back((mono_ns, spacing_m, run));
     }
 
-    /// The autopilot took a picture at `mono_ns` (an older one than the last is ignored).
-    pub fn on_picture(&mut self, mono_ns: u64) {
+    /// The autopilot took a picture at `mono_ns`: returns the tightest spacing
+    /// of the interval it closes (the frames from the last picture up to this
+    /// one; `None`: no frame in it). An older picture than the last is ignored
+    /// (`None`).
+    pub fn on_picture(&mut self, mono_ns: u64) -> Option<f64> {
         if self.picture_ns.is_some_and(|p| mono_ns <= p) {
-            return;
+            return None;
         }
+        // The closing interval's frames end with the newest frame before the
+        // picture; its running tightest is theirs (frames come in time order).
+        // Without one kept, no frame was heard of after the last picture and
+        // before this one, or it came before that picture.
+        let closing = match self.recent.iter().rev().find(|(t, _, _)| *t < mono_ns) {
+            Some(&(t, _, run)) if self.picture_ns.is_none_or(|p| t >= p) => run,
+            _ => None,
+        };
         self.picture_ns = Some(mono_ns);
-        self.tightest_m = self
-            .recent
-            .iter()
-            .filter(|(t, _)| *t >= mono_ns)
-            .map(|(_, s)| *s)
-            .reduce(f64::min);
+        let mut run: Option<f64> = None;
+        for e in self.recent.iter_mut().filter(|e| e.0 >= mono_ns) {
+            run = Some(run.map_or(e.1, |r: f64| r.min(e.1)));
+            e.2 = run;
+        }
+        self.tightest_m = run;
+        closing
     }
 
     /// The tightest spacing since the last picture (`None`: no frame since).
@@ -431,7 +448,8 @@ mod tests {
         }
         assert_eq!(w.tightest_m(), Some(0.7));
         // A picture at 150 heard of after the frames at 166 and 200: they are its interval's.
-        w.on_picture(150);
+        // The interval it closes: the frames before it (0.7 m the tightest).
+        assert_eq!(w.on_picture(150), Some(0.7));
         assert_eq!(w.tightest_m(), Some(3.0));
         // A late frame from before the picture does not count.
         w.on_spacing(140, 0.1);
@@ -439,10 +457,11 @@ mod tests {
         w.on_spacing(233, 2.5);
         assert_eq!(w.tightest_m(), Some(2.5));
         // An older picture heard of later changes nothing.
-        w.on_picture(120);
+        assert_eq!(w.on_picture(120), None);
         assert_eq!(w.tightest_m(), Some(2.5));
         // A picture after every frame: nothing since it yet; bad spacings are ignored.
-        w.on_picture(300);
+        // It closes 166 … 233 (not the late 140).
+        assert_eq!(w.on_picture(300), Some(2.5));
         assert_eq!(w.tightest_m(), None);
         w.on_spacing(310, f64::NAN);
         assert_eq!(w.tightest_m(), None);
@@ -450,7 +469,8 @@ mod tests {
         for k in 0..100u64 {
             w.on_spacing(400 + k, 1.0 + k as f64);
         }
-        w.on_picture(400);
+        // No valid frame between 300 and 400 (310 was NaN).
+        assert_eq!(w.on_picture(400), None);
         assert_eq!(w.tightest_m(), Some(1.0 + (100 - RECENT_FRAMES) as f64));
     }
 
