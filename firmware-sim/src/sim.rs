@@ -578,17 +578,13 @@ impl Engine {
         if let Some(at) = self.trigger_at {
             if at as u64 <= now {
                 let at = at as u64;
-                let retry = match check_period_ns(self.cfg.autopilot) {
+                if self.capture(io, at, "trigger") || self.cfg.autopilot != Autopilot::ArduPilot {
+                    self.trigger.fired(self.path_at(at));
+                    self.schedule_trigger(at);
+                } else {
                     // ArduPilot keeps trying at its camera's 50 Hz update.
-                    Some(period) if self.cfg.autopilot == Autopilot::ArduPilot => Some(period),
-                    _ => None,
-                };
-                match (self.capture(io, at, "trigger"), retry) {
-                    (false, Some(period)) => self.trigger_at = Some((at + period) as f64),
-                    _ => {
-                        self.trigger.fired(self.path_at(at));
-                        self.schedule_trigger(at);
-                    }
+                    let period = check_period_ns(Autopilot::ArduPilot).unwrap_or_default();
+                    self.trigger_at = Some((at + period) as f64);
                 }
             }
         }
