@@ -213,6 +213,7 @@ pub struct RawEstimator {
     pub sspa_iterations: Option<i64>,
     pub sspa_trim_sigma: Option<f64>,
     pub visibility_samples_max: Option<i64>,
+    pub visibility_interleave: Option<i64>,
     pub threads: Option<i64>,
 }
 
@@ -358,6 +359,9 @@ impl RawConfig {
         let e = &self.estimator;
         if let Some(n) = e.visibility_samples_max {
             p.visibility_samples_max = count("estimator.visibility_samples_max", n)?;
+        }
+        if let Some(n) = e.visibility_interleave {
+            p.visibility_interleave = count("estimator.visibility_interleave", n)?;
         }
         set!(e.valid_fraction_min, p.valid_fraction_min);
         set!(e.percentile_low, p.percentile_low);
@@ -958,6 +962,26 @@ mod tests {
         assert_eq!(
             Config::from_text("", "x.toml").unwrap().estimator_threads,
             1
+        );
+        for n in ["0", "-1", "9"] {
+            let e = Config::from_text(
+                &format!("[estimator]\nvisibility_interleave = {n}\n"),
+                "x.toml",
+            )
+            .unwrap_err();
+            assert!(
+                e.to_string().contains("estimator.visibility_interleave"),
+                "{e}"
+            );
+        }
+        let c = Config::from_text("[estimator]\nvisibility_interleave = 1\n", "x.toml").unwrap();
+        assert_eq!(c.estimator.visibility_interleave, 1);
+        assert_eq!(
+            Config::from_text("", "x.toml")
+                .unwrap()
+                .estimator
+                .visibility_interleave,
+            4
         );
     }
 

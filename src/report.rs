@@ -67,6 +67,8 @@ pub fn estimate_json(
             "occluded_lines": v.occluded_lines,
             "interval_min_m": num(v.interval_min_m),
             "occluded_interval_min_m": num(v.occluded_interval_min_m),
+            "step": v.step,
+            "interleave": v.interleave,
         })),
         "spacing_m": {
             "parallax": num(e.spacing.parallax_m),
@@ -192,10 +194,15 @@ pub fn estimate_text(
         if let Some(v) = e.visibility {
             let _ = writeln!(
                 s,
-                "visibility     {} of {} samples occluded on {} lines{}",
+                "visibility     {} of {} samples occluded on {} lines{}{}",
                 v.occluded_samples,
                 v.samples,
                 v.occluded_lines,
+                if v.step > 1 {
+                    format!(", every {} px", v.step)
+                } else {
+                    String::new()
+                },
                 if v.occluded_samples == 0 {
                     " (term left out)"
                 } else {

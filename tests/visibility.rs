@@ -7,8 +7,9 @@
 
 use alfd::core::inverse::{fill_grid, DepthRange, InvGrid};
 use alfd::core::visibility::{
-    line_intervals, visibility, visibility_of_image, visibility_on, End, Interval, LineRun,
-    LineScratch, SweepWorkers, TrackRays, Visibility, VisibilityParams,
+    line_intervals, visibility, visibility_interleaved, visibility_of_image, visibility_on, End,
+    Interleave, Interval, LineRun, LineScratch, SweepWorkers, TrackRays, Visibility,
+    VisibilityParams,
 };
 use alfd::core::{DepthData, DepthImage, Intrinsics, TrackAxis};
 use alfd::synth::{Aabb, BoxWorld, CameraPose};
@@ -687,6 +688,44 @@ fn check_outputs(v: &Visibility) -> Result<(), TestCaseError> {
     Ok(())
 }
 
+/// Every output of two terms equal, to the bit (the unseen fraction at spacings
+/// around each of the second's).
+fn same_term(a: &Visibility, b: &Visibility) -> Result<(), TestCaseError> {
+    prop_assert_eq!(
+        (a.lines, a.samples, a.occluded_samples, a.occluded_lines),
+        (b.lines, b.samples, b.occluded_samples, b.occluded_lines)
+    );
+    prop_assert_eq!(
+        (
+            a.interval_min_m,
+            a.occluded_interval_min_m,
+            a.spacing_views_m,
+            a.spacing_views_occluded_m
+        ),
+        (
+            b.interval_min_m,
+            b.occluded_interval_min_m,
+            b.spacing_views_m,
+            b.spacing_views_occluded_m
+        )
+    );
+    prop_assert_eq!(a.spacing_unseen_m, b.spacing_unseen_m);
+    for x in [
+        b.interval_min_m,
+        b.occluded_interval_min_m,
+        b.spacing_unseen_m,
+        Some(1.0),
+    ]
+    .into_iter()
+    .flatten()
+    {
+        for s in [x * 0.5, x, x * 2.0] {
+            prop_assert_eq!(a.unseen_at(s), b.unseen_at(s), "at {}", s);
+        }
+    }
+    Ok(())
+}
+
 /// Workers that sweep every other run, each twice, and leave the rest: what
 /// the core must make whole whoever it lends the runs to.
 #[derive(Debug)]
@@ -728,6 +767,48 @@ proptest! {
         prop_assert_eq!(&one, &many);
         let careless = visibility_on(&g, &geom, c.pitch_rad, &p, Some(&Careless(threads)));
         prop_assert_eq!(&one, &careless);
+    }
+
+    /// A sweep spread over frames takes each line from the newest frame that
+    /// swept it: after frame A, each frame of B replaces one residue class of
+    /// lines, and the term is the sweep of the grid spliced so, to the bit
+    /// (every output; the occluded samples come in another order, which no
+    /// output depends on). `stride` frames of B give B's own term.
+    #[test]
+    fn an_interleaved_sweep_is_the_sweep_of_each_lines_newest_frame(
+        (c, other) in random_case().prop_flat_map(|c| {
+            let n = c.img.width() * c.img.height();
+            (Just(c), proptest::collection::vec(depth(), n))
+        }),
+        p in params(),
+        stride in 2usize..6,
+        threads in prop_oneof![Just(1usize), 2usize..4],
+    ) {
+        let b_img = DepthImage::new(c.img.width(), c.img.height(), DepthData::Metres(other)).unwrap();
+        let (mut ga, mut gb) = (InvGrid::default(), InvGrid::default());
+        fill_grid(&c.img, c.axis, c.step, &DepthRange::default(), &mut ga);
+        fill_grid(&b_img, c.axis, c.step, &DepthRange::default(), &mut gb);
+        let geom = c.intr.track(c.axis);
+        let pool = ThreadWorkers::new(threads);
+        let workers: Option<&dyn SweepWorkers> = (threads > 1).then_some(&pool as _);
+        let mut state = Interleave::default();
+        let first = visibility_interleaved(&ga, &geom, c.pitch_rad, &p, workers, stride, &mut state);
+        same_term(&first, &visibility(&ga, &geom, c.pitch_rad, &p))?;
+        // The stride in force: at most one class per line.
+        let s = stride.min(ga.lines.max(1));
+        let per = ga.per_line;
+        let mut spliced = ga.clone();
+        for j in 0..s {
+            let v = visibility_interleaved(&gb, &geom, c.pitch_rad, &p, workers, stride, &mut state);
+            for a in (0..ga.lines).filter(|a| a % s == j) {
+                spliced.w[a * per..(a + 1) * per].copy_from_slice(gb.line(a));
+            }
+            same_term(&v, &visibility(&spliced, &geom, c.pitch_rad, &p))?;
+        }
+        same_term(&visibility(&spliced, &geom, c.pitch_rad, &p), &visibility(&gb, &geom, c.pitch_rad, &p))?;
+        // Stride 1 is the frame's own sweep, and forgets the others.
+        let one = visibility_interleaved(&ga, &geom, c.pitch_rad, &p, workers, 1, &mut state);
+        prop_assert_eq!(&one, &visibility(&ga, &geom, c.pitch_rad, &p));
     }
 
     /// Finite, non-negative, in range and monotone on random maps, focal

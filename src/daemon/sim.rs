@@ -257,6 +257,10 @@ profile = "{profile}"
 # to 5.3x too long on 20 % of the frames (docs/performance.md). The bench has
 # the CPU; on a drone it is `visibility_samples_max`'s trade.
 visibility_samples_max = {pixels}
+# Every line on every frame: spread over the flight default's 4 frames, the
+# lines swept on earlier frames miss the gaps this frame sees first (13
+# avoidable violations on this flight, docs/error-vs-runtime.md).
+visibility_interleave = 1
 # The sweep's lines on every core of the bench: the same estimate, sooner.
 threads = {threads}
 
@@ -900,6 +904,7 @@ mod tests {
             let config = crate::config::Config::from_text(&text, "sim").expect("it validates");
             let samples = config.estimator.visibility_samples_max;
             assert!(samples >= width * height, "{width}x{height}: {samples}");
+            assert_eq!(config.estimator.visibility_interleave, 1);
             assert_eq!(
                 crate::core::estimate::visibility_step(width * height, 1, samples),
                 1

@@ -28,6 +28,7 @@ pub fn truth_estimates(
     params: &EstimatorParams,
     poses: &[TruthPose],
 ) -> Vec<TrackSample> {
+    let params = &per_frame(params);
     let mut out = Vec::with_capacity(poses.len());
     let mut estimator = Estimator::new(params.clone());
     let mut rendered = (0..poses.len()).map(|_| None).collect::<Vec<_>>();
@@ -41,6 +42,19 @@ pub fn truth_estimates(
         &mut out,
     );
     out
+}
+
+/// The daemon's estimator with the visibility sweep over every sample of its
+/// grid, every line on every frame: the truth judges the sweep's two CPU knobs
+/// (`visibility_samples_max`'s thinning and `visibility_interleave`'s spreading
+/// over frames) and shares neither. (So each fixed-decimation frame owes
+/// nothing to the frames before, and they can be estimated in parallel.)
+fn per_frame(params: &EstimatorParams) -> EstimatorParams {
+    EstimatorParams {
+        visibility_interleave: 1,
+        visibility_samples_max: usize::MAX,
+        ..params.clone()
+    }
 }
 
 /// Appends the samples of `poses[range]` to `out`, each pose's flight axis from
@@ -155,6 +169,7 @@ impl TruthStream {
         intrinsics: Intrinsics,
         params: EstimatorParams,
     ) -> Option<TruthStream> {
+        let params = per_frame(&params);
         let (tx, rx) = std::sync::mpsc::sync_channel::<(TruthPose, Option<Vec<f32>>)>(STREAM_QUEUE);
         let given = Arc::new(AtomicUsize::new(0));
         let taken = given.clone();

@@ -15,7 +15,8 @@ use super::spacing::{
     occlusion_term_m, sspa_m,
 };
 use super::visibility::{
-    visibility_on, SweepWorkers, Visibility, VisibilityParams, DEFAULT_PHASES,
+    visibility_interleaved, visibility_on, Interleave, SweepWorkers, Visibility, VisibilityParams,
+    DEFAULT_PHASES,
 };
 use std::sync::Arc;
 use thiserror::Error;
@@ -214,6 +215,12 @@ pub struct VisibilitySummary {
     pub interval_min_m: Option<f64>,
     /// Shortest interval an occluder cuts, m.
     pub occluded_interval_min_m: Option<f64>,
+    /// The sweep's sampling step, pixels both ways (above the estimate's own
+    /// decimation where `visibility_samples_max` thinned it).
+    pub step: usize,
+    /// This frame swept one in `interleave` lines and took the others from the
+    /// frames before (1: every line on this frame; `visibility_interleave`).
+    pub interleave: usize,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -365,6 +372,9 @@ pub struct Estimator {
     auto: Option<AutoLevel>,
     /// Threads lent to the visibility sweep (`None`: the calling thread).
     sweep_workers: Option<Arc<dyn SweepWorkers>>,
+    /// The flight's visibility sweep spread over frames
+    /// (`visibility_interleave`; only [`Estimator::estimate`] uses it).
+    interleave: Interleave,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -386,6 +396,7 @@ impl Estimator {
             vis_grid: InvGrid::default(),
             auto: None,
             sweep_workers: None,
+            interleave: Interleave::default(),
         }
     }
 
@@ -403,12 +414,18 @@ impl Estimator {
     /// Scan along another image axis from the next frame on (the direction of
     /// flight moved in the image: crabbing, sideways flight).
     pub fn set_track_axis(&mut self, axis: super::depth::TrackAxis) {
-        self.params.track_axis = axis;
+        if axis != self.params.track_axis {
+            self.params.track_axis = axis;
+            self.interleave.reset();
+        }
     }
 
-    /// The estimate at the configured decimation. `Auto` calibrates on the first frame,
-    /// every `recalibrate_frames` frames after, on a new frame size and whenever the
-    /// calibrated level gives no estimate; the choice is returned on the frames it was made.
+    /// The estimate of the next frame of a flight at the configured decimation. `Auto`
+    /// calibrates on the first frame, every `recalibrate_frames` frames after, on a new
+    /// frame size and whenever the calibrated level gives no estimate; the choice is
+    /// returned on the frames it was made. With `visibility_interleave` above 1 the
+    /// visibility term also takes lines swept on the frames before (calibration frames
+    /// sweep every line and do not advance it): give the frames in order.
     pub fn estimate(
         &mut self,
         image: &DepthImage,
@@ -416,7 +433,9 @@ impl Estimator {
         pitch_rad: f64,
     ) -> Result<(Estimate, Option<DecimationChoice>), EstimateError> {
         match self.params.decimation.clone() {
-            Decimation::Fixed(n) => Ok((self.estimate_at(image, intr, pitch_rad, n)?, None)),
+            Decimation::Fixed(n) => {
+                Ok((self.estimate_step(image, intr, pitch_rad, n, true)?, None))
+            }
             Decimation::Auto {
                 budget,
                 levels,
@@ -427,7 +446,7 @@ impl Estimator {
                     .auto
                     .filter(|a| a.size == size && a.frames < recalibrate_frames)
                 {
-                    let e = self.estimate_at(image, intr, pitch_rad, a.level)?;
+                    let e = self.estimate_step(image, intr, pitch_rad, a.level, true)?;
                     if e.is_ok() {
                         self.auto = Some(AutoLevel {
                             frames: a.frames + 1,
@@ -502,13 +521,27 @@ impl Estimator {
         ))
     }
 
-    /// The estimate sampling every `step`-th pixel along and across track.
+    /// The estimate sampling every `step`-th pixel along and across track, of
+    /// this frame alone (the visibility sweep on every line of its grid).
     pub fn estimate_at(
         &mut self,
         image: &DepthImage,
         intr: &Intrinsics,
         pitch_rad: f64,
         step: usize,
+    ) -> Result<Estimate, EstimateError> {
+        self.estimate_step(image, intr, pitch_rad, step, false)
+    }
+
+    /// [`Estimator::estimate_at`]; `in_flight`: a frame of the flight, whose
+    /// visibility sweep may be spread over frames (`visibility_interleave`).
+    fn estimate_step(
+        &mut self,
+        image: &DepthImage,
+        intr: &Intrinsics,
+        pitch_rad: f64,
+        step: usize,
+        in_flight: bool,
     ) -> Result<Estimate, EstimateError> {
         if intr.width() != image.width() || intr.height() != image.height() {
             return Err(EstimateError::SizeMismatch {
@@ -621,7 +654,17 @@ impl Estimator {
             // both ways. Thinning the lines alone (every sample along track)
             // was measured worse: the views bound is a minimum over lines, and
             // skipped lines miss the narrowest gap (docs/error-vs-runtime.md).
-            let vstep = visibility_step(self.grid.samples(), step, p.visibility_samples_max);
+            // Interleaved, a frame sweeps one in `stride` lines: the bound is on those.
+            let stride = if in_flight {
+                p.visibility_interleave.max(1)
+            } else {
+                1
+            };
+            let vstep = visibility_step(
+                self.grid.samples().div_ceil(stride),
+                step,
+                p.visibility_samples_max,
+            );
             let vgrid = if vstep == step {
                 &self.grid
             } else {
@@ -634,19 +677,27 @@ impl Estimator {
                 );
                 &self.vis_grid
             };
-            let v = visibility_on(
-                vgrid,
-                &geom,
-                pitch_rad,
-                &VisibilityParams {
-                    unseen_fraction_max: p.quality.unseen_fraction_max,
-                    views_per_point_min: p.quality.views_per_point_min,
-                    phases: DEFAULT_PHASES,
-                    views_band: 0.5,
-                    ..VisibilityParams::default()
-                },
-                self.sweep_workers.as_deref(),
-            );
+            let vparams = VisibilityParams {
+                unseen_fraction_max: p.quality.unseen_fraction_max,
+                views_per_point_min: p.quality.views_per_point_min,
+                phases: DEFAULT_PHASES,
+                views_band: 0.5,
+                ..VisibilityParams::default()
+            };
+            let workers = self.sweep_workers.as_deref();
+            let v = if stride > 1 {
+                visibility_interleaved(
+                    vgrid,
+                    &geom,
+                    pitch_rad,
+                    &vparams,
+                    workers,
+                    stride,
+                    &mut self.interleave,
+                )
+            } else {
+                visibility_on(vgrid, &geom, pitch_rad, &vparams, workers)
+            };
             if v.samples > 0 {
                 est.terms.views = true;
                 est.spacing.views_m = v.spacing_views_m;
@@ -663,6 +714,12 @@ impl Estimator {
                 occluded_lines: v.occluded_lines,
                 interval_min_m: v.interval_min_m,
                 occluded_interval_min_m: v.occluded_interval_min_m,
+                step: vstep,
+                interleave: if stride > 1 && !self.interleave.swept_every_line() {
+                    stride
+                } else {
+                    1
+                },
             });
             vis = Some(v);
         }

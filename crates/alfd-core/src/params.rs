@@ -210,7 +210,17 @@ pub struct EstimatorParams {
     /// sample is ~25 reads, and at 640 × 480 it starved the daemon's camera
     /// and writer (docs/error-vs-runtime.md has the error it costs).
     pub visibility_samples_max: usize,
+    /// A frame of a flight ([`crate::Estimator::estimate`]) sweeps one in this
+    /// many lines across track for the visibility term and keeps the others'
+    /// newest sweeps from the frames before (1: every line every frame;
+    /// `visibility::Interleave`). `visibility_samples_max` then bounds the
+    /// samples one frame sweeps.
+    pub visibility_interleave: usize,
 }
+
+/// Most frames one visibility sweep may be spread over: at 30 fps, a line's
+/// sweep at most a quarter of a second old.
+pub const VISIBILITY_INTERLEAVE_MAX: usize = 8;
 
 impl Default for EstimatorParams {
     fn default() -> Self {
@@ -247,6 +257,10 @@ impl Default for EstimatorParams {
             sspa_iterations: 3,
             sspa_trim_sigma: 2.5,
             visibility_samples_max: 80_000,
+            // At 640 × 480, every pixel once in four frames costs what every
+            // second pixel both ways on every frame did, and misses far less
+            // (docs/error-vs-runtime.md, "Spreading the sweep over frames").
+            visibility_interleave: 4,
         }
     }
 }
@@ -460,6 +474,16 @@ impl EstimatorParams {
             p.visibility_samples_max >= 100,
             "estimator.visibility_samples_max",
             || format!("must be at least 100, got {}", p.visibility_samples_max),
+        )?;
+        check(
+            (1..=VISIBILITY_INTERLEAVE_MAX).contains(&p.visibility_interleave),
+            "estimator.visibility_interleave",
+            || {
+                format!(
+                    "must be in [1, {VISIBILITY_INTERLEAVE_MAX}], got {}",
+                    p.visibility_interleave
+                )
+            },
         )?;
         check(
             (1..=100).contains(&p.sspa_iterations),

@@ -857,3 +857,54 @@ fn no_return_within_the_percentile_tail_leaves_the_range_alone() {
     assert_eq!(a.spacing.parallax_m, b.spacing.parallax_m);
     assert!(b.spacing.parallax_m.is_some());
 }
+
+#[test]
+fn a_flights_sweep_spread_over_frames_takes_each_line_from_its_newest_frame() {
+    let intr = Intrinsics::from_hfov_deg(160, 120, 69.0, None).unwrap();
+    // Stripes across track (every line alike): a narrow one has the shorter
+    // shortest interval.
+    let (wide, narrow) = (
+        stripes(160, 120, 40, 20.0, 40.0),
+        stripes(160, 120, 8, 20.0, 40.0),
+    );
+    let params = EstimatorParams {
+        visibility_interleave: 2,
+        score: None,
+        ..EstimatorParams::default()
+    };
+    params.validate().unwrap();
+    let alone = |img: &DepthImage| {
+        Estimator::new(params.clone())
+            .estimate_at(img, &intr, 0.0, 1)
+            .unwrap()
+    };
+    let vis = |e: &Estimate| e.visibility.expect("the quality model sweeps");
+    let (w, n) = (alone(&wide), alone(&narrow));
+    let (w_min, n_min) = (
+        vis(&w).interval_min_m.unwrap(),
+        vis(&n).interval_min_m.unwrap(),
+    );
+    assert!(n_min < w_min, "{n_min} {w_min}");
+    let mut est = Estimator::new(params.clone());
+    // The first frame sweeps every line.
+    let first = est.estimate(&narrow, &intr, 0.0).unwrap().0;
+    assert_eq!(first, n);
+    assert_eq!(vis(&first).interleave, 1);
+    // The daemon sets the axis on every frame: the same axis keeps the turn.
+    est.set_track_axis(TrackAxis::Rows);
+    // A frame estimated alone in between leaves the flight's sweep alone.
+    assert_eq!(est.estimate_at(&wide, &intr, 0.0, 1).unwrap(), w);
+    // Half the lines of the wide frame, half still the narrow one's: the
+    // narrow stripes' shortest interval stays until their lines are swept again.
+    let second = est.estimate(&wide, &intr, 0.0).unwrap().0;
+    assert_eq!(vis(&second).interleave, 2);
+    assert_eq!(vis(&second).interval_min_m, Some(n_min));
+    assert_eq!(vis(&second).samples, vis(&w).samples);
+    let third = est.estimate(&wide, &intr, 0.0).unwrap().0;
+    assert_eq!(vis(&third).interval_min_m, Some(w_min));
+    assert_eq!(third.spacing, w.spacing);
+    // Another axis starts again from every line.
+    est.set_track_axis(TrackAxis::Columns);
+    let turned = est.estimate(&narrow, &intr, 0.0).unwrap().0;
+    assert_eq!(vis(&turned).interleave, 1);
+}

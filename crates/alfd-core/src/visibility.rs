@@ -758,23 +758,30 @@ pub trait SweepWorkers: Send + Sync + std::fmt::Debug {
 #[derive(Debug, Clone)]
 pub struct LineRun {
     lines: std::ops::Range<usize>,
+    /// Of `lines`, those `a` with `a % stride == phase` (stride 1: all).
+    stride: usize,
+    phase: usize,
     done: bool,
     scratch: LineScratch,
+    found: Swept,
+}
+
+/// What the sweep found on a set of lines: what [`Visibility`] is made of.
+#[derive(Debug, Clone)]
+struct Swept {
     surface_lines: u64,
     samples: u64,
     occluded_samples: u64,
     occluded_lines: u64,
+    /// Shortest interval of any sample, of an occluded one, in the views band.
     min_all: f64,
     min_occ: f64,
     occluded: Vec<(f32, f32)>,
 }
 
-impl LineRun {
-    fn new(lines: std::ops::Range<usize>) -> LineRun {
-        LineRun {
-            lines,
-            done: false,
-            scratch: LineScratch::default(),
+impl Default for Swept {
+    fn default() -> Self {
+        Swept {
             surface_lines: 0,
             samples: 0,
             occluded_samples: 0,
@@ -782,6 +789,36 @@ impl LineRun {
             min_all: f64::INFINITY,
             min_occ: f64::INFINITY,
             occluded: Vec::new(),
+        }
+    }
+}
+
+impl Swept {
+    /// Adds `other`'s lines (disjoint from this one's).
+    fn add(&mut self, other: &mut Swept) {
+        self.surface_lines += other.surface_lines;
+        self.samples += other.samples;
+        self.occluded_samples += other.occluded_samples;
+        self.occluded_lines += other.occluded_lines;
+        self.min_all = self.min_all.min(other.min_all);
+        self.min_occ = self.min_occ.min(other.min_occ);
+        if self.occluded.is_empty() {
+            self.occluded = std::mem::take(&mut other.occluded);
+        } else {
+            self.occluded.extend_from_slice(&other.occluded);
+        }
+    }
+}
+
+impl LineRun {
+    fn new(lines: std::ops::Range<usize>, stride: usize, phase: usize) -> LineRun {
+        LineRun {
+            lines,
+            stride: stride.max(1),
+            phase,
+            done: false,
+            scratch: LineScratch::default(),
+            found: Swept::default(),
         }
     }
 
@@ -800,10 +837,12 @@ impl LineRun {
         self.done = true;
         // Counted in locals (a store through `self` beside the pushes would
         // be reloaded every sample), in the same order: the same minima.
-        let (mut samples, mut occluded_samples) = (self.samples, self.occluded_samples);
-        let (mut min_all, mut min_occ) = (self.min_all, self.min_occ);
-        let records = &mut self.occluded;
-        for a in self.lines.clone() {
+        let f = &mut self.found;
+        let (mut samples, mut occluded_samples) = (f.samples, f.occluded_samples);
+        let (mut min_all, mut min_occ) = (f.min_all, f.min_occ);
+        let records = &mut f.occluded;
+        let (stride, phase) = (self.stride, self.phase);
+        for a in self.lines.clone().filter(|a| a % stride == phase) {
             let (mut surface, mut occluded) = (false, false);
             let counts = in_band.contains(&a);
             sweep_line(
@@ -828,11 +867,11 @@ impl LineRun {
                     }
                 },
             );
-            self.surface_lines += surface as u64;
-            self.occluded_lines += occluded as u64;
+            f.surface_lines += surface as u64;
+            f.occluded_lines += occluded as u64;
         }
-        (self.samples, self.occluded_samples) = (samples, occluded_samples);
-        (self.min_all, self.min_occ) = (min_all, min_occ);
+        (f.samples, f.occluded_samples) = (samples, occluded_samples);
+        (f.min_all, f.min_occ) = (min_all, min_occ);
     }
 }
 
@@ -844,9 +883,23 @@ pub fn visibility_on(
     params: &VisibilityParams,
     workers: Option<&dyn SweepWorkers>,
 ) -> Visibility {
-    let mut v = Visibility::empty(params);
+    let mut found = sweep_lines(grid, geom, pitch_rad, params, workers, 1, 0);
+    Visibility::from_swept(params, &mut found)
+}
+
+/// The lines `a ≡ phase (mod stride)` of `grid`, swept.
+fn sweep_lines(
+    grid: &InvGrid,
+    geom: &TrackGeometry,
+    pitch_rad: f64,
+    params: &VisibilityParams,
+    workers: Option<&dyn SweepWorkers>,
+    stride: usize,
+    phase: usize,
+) -> Swept {
+    let mut found = Swept::default();
     if grid.per_line == 0 || grid.lines == 0 || !pitch_rad.is_finite() {
-        return v;
+        return found;
     }
     let rays = TrackRays::new(geom, &grid.along_idx, pitch_rad);
     let band = if params.views_band.is_finite() {
@@ -859,13 +912,13 @@ pub fn visibility_on(
     let margin = params.occluder_margin_rel;
     let threads = workers.map_or(1, |w| w.threads().max(1));
     let mut runs: Vec<LineRun> = if threads == 1 {
-        vec![LineRun::new(0..grid.lines)]
+        vec![LineRun::new(0..grid.lines, stride, phase)]
     } else {
         // A few runs per thread, so that a thread whose lines hold the
         // occluders does not keep the others waiting.
         let n = (4 * threads).min(grid.lines);
         (0..n)
-            .map(|i| LineRun::new(i * grid.lines / n..(i + 1) * grid.lines / n))
+            .map(|i| LineRun::new(i * grid.lines / n..(i + 1) * grid.lines / n, stride, phase))
             .collect()
     };
     if let Some(w) = workers.filter(|_| runs.len() > 1) {
@@ -875,32 +928,117 @@ pub fn visibility_on(
     for r in &mut runs {
         r.sweep(grid, &rays, margin, &in_band);
     }
-    let (mut min_all, mut min_occ) = (f64::INFINITY, f64::INFINITY);
     // In line order: the occluded samples in the order one thread gives them.
     for r in &mut runs {
-        v.lines += r.surface_lines;
-        v.samples += r.samples;
-        v.occluded_samples += r.occluded_samples;
-        v.occluded_lines += r.occluded_lines;
-        min_all = min_all.min(r.min_all);
-        min_occ = min_occ.min(r.min_occ);
-        if v.occluded.is_empty() {
-            v.occluded = std::mem::take(&mut r.occluded);
-        } else {
-            v.occluded.extend_from_slice(&r.occluded);
+        found.add(&mut r.found);
+    }
+    found
+}
+
+impl Visibility {
+    /// The term from what the sweep found (its records are taken).
+    fn from_swept(params: &VisibilityParams, found: &mut Swept) -> Visibility {
+        let mut v = Visibility::empty(params);
+        v.lines = found.surface_lines;
+        v.samples = found.samples;
+        v.occluded_samples = found.occluded_samples;
+        v.occluded_lines = found.occluded_lines;
+        v.occluded = std::mem::take(&mut found.occluded);
+        let (min_all, min_occ) = (found.min_all, found.min_occ);
+        let k = v.views_per_point_min as f64;
+        v.interval_min_m = min_all.is_finite().then_some(min_all);
+        v.occluded_interval_min_m = min_occ.is_finite().then_some(min_occ);
+        v.spacing_views_m = v.interval_min_m.map(|l| l / k);
+        v.spacing_views_occluded_m = v.occluded_interval_min_m.map(|l| l / k);
+        if v.samples > 0 && v.unseen_fraction_max < 1.0 {
+            // At most `k_max` unseen samples keeps the fraction within the target.
+            let k_max = (v.unseen_fraction_max * v.samples as f64).floor() as usize;
+            v.spacing_unseen_m = unseen_spacing(&v.occluded, k_max, v.phases);
         }
+        v
     }
-    let k = v.views_per_point_min as f64;
-    v.interval_min_m = min_all.is_finite().then_some(min_all);
-    v.occluded_interval_min_m = min_occ.is_finite().then_some(min_occ);
-    v.spacing_views_m = v.interval_min_m.map(|l| l / k);
-    v.spacing_views_occluded_m = v.occluded_interval_min_m.map(|l| l / k);
-    if v.samples > 0 && v.unseen_fraction_max < 1.0 {
-        // At most `k_max` unseen samples keeps the fraction within the target.
-        let k_max = (v.unseen_fraction_max * v.samples as f64).floor() as usize;
-        v.spacing_unseen_m = unseen_spacing(&v.occluded, k_max, v.phases);
+}
+
+/// The visibility sweep spread over the frames of a flight: each frame sweeps
+/// every `stride`-th line across track, the next frame the next set, and the
+/// term is taken over the newest sweep of every line. A line's sweep is then at
+/// most `stride − 1` frames old (at 30 fps and 10 m/s, 0.33 m of travel a
+/// frame, against a footprint of tens of metres), and the frame costs
+/// `1/stride` of the whole sweep at full resolution along and across track:
+/// unlike a coarser grid, no line and no sample is left out for good, so the
+/// narrowest gap is found within `stride` frames (docs/error-vs-runtime.md).
+///
+/// A frame of another shape (size, decimation, track axis) sweeps every line
+/// and starts the turn again; so does the first.
+#[derive(Debug, Clone, Default)]
+pub struct Interleave {
+    /// `(lines, per_line, stride)` the parts were swept with.
+    key: Option<(usize, usize, usize)>,
+    /// The newest sweep of each residue class of lines.
+    parts: Vec<Swept>,
+    /// The class the next frame sweeps.
+    next: usize,
+    /// Whether the last frame swept every line (the first, or a new shape).
+    full: bool,
+}
+
+impl Interleave {
+    /// Forgets every part: the next frame sweeps every line.
+    pub fn reset(&mut self) {
+        self.key = None;
+        self.parts.clear();
+        self.next = 0;
+        self.full = false;
     }
-    v
+
+    /// Whether the last frame swept every line itself.
+    pub fn swept_every_line(&self) -> bool {
+        self.full
+    }
+}
+
+/// [`visibility_on`] of a frame of a flight, sweeping one in `stride` lines and
+/// taking the others from the last frames (`state`; see [`Interleave`]).
+/// `stride` 1 (or 0) is [`visibility_on`] exactly.
+pub fn visibility_interleaved(
+    grid: &InvGrid,
+    geom: &TrackGeometry,
+    pitch_rad: f64,
+    params: &VisibilityParams,
+    workers: Option<&dyn SweepWorkers>,
+    stride: usize,
+    state: &mut Interleave,
+) -> Visibility {
+    let stride = stride.max(1).min(grid.lines.max(1));
+    if stride == 1 {
+        state.reset();
+        state.full = true;
+        return visibility_on(grid, geom, pitch_rad, params, workers);
+    }
+    let key = (grid.lines, grid.per_line, stride);
+    if state.key != Some(key) || state.parts.len() != stride {
+        state.parts = (0..stride)
+            .map(|phase| sweep_lines(grid, geom, pitch_rad, params, workers, stride, phase))
+            .collect();
+        state.key = Some(key);
+        state.next = 0;
+        state.full = true;
+    } else {
+        state.full = false;
+        let phase = state.next;
+        state.parts[phase] = sweep_lines(grid, geom, pitch_rad, params, workers, stride, phase);
+        state.next = (phase + 1) % stride;
+    }
+    let mut found = Swept::default();
+    for part in &state.parts {
+        // The parts are kept for the frames to come: their records copied.
+        let mut copy = Swept {
+            occluded: part.occluded.clone(),
+            ..*part
+        };
+        found.add(&mut copy);
+    }
+    Visibility::from_swept(params, &mut found)
 }
 
 /// [`visibility`] of a depth image sampled every `step` pixels (every valid
