@@ -100,6 +100,13 @@ fn bench(c: &mut Criterion) {
                     .unwrap()
             })
         });
+        // A frame of a flight at the defaults (`Estimator::estimate`): the sweep
+        // on every pixel of a quarter of the lines (`visibility_interleave`),
+        // the other lines' newest sweeps kept.
+        let mut est_flight = Estimator::new(params.clone());
+        g.bench_function("estimate_in_flight", |b| {
+            b.iter(|| est_flight.estimate(black_box(&img), &intr, pitch).unwrap())
+        });
         let no_score = EstimatorParams {
             score: None,
             ..params.clone()

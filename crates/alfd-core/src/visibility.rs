@@ -626,7 +626,16 @@ fn sanitize_fraction(u: f64) -> f64 {
 /// phase the `(k_max+1)`-th smallest onset, the least of them over phases. The
 /// middle phase goes first, and later phases look only at samples that can
 /// beat the best so far (`onset ≥ L`).
-fn unseen_spacing(records: &[(f32, f32)], k_max: usize, phases: usize) -> Option<f64> {
+///
+/// `guess` (e.g. the last frame's answer) changes the cost, never the answer:
+/// when more than `k_max` onsets of the middle phase lie below it, that phase's
+/// order statistic is below it too, and is selected among those alone.
+fn unseen_spacing(
+    records: &[(f32, f32)],
+    k_max: usize,
+    phases: usize,
+    guess: Option<f64>,
+) -> Option<f64> {
     if records.len() <= k_max {
         return None;
     }
@@ -642,6 +651,16 @@ fn unseen_spacing(records: &[(f32, f32)], k_max: usize, phases: usize) -> Option
         }
     }
     let mut best = f64::INFINITY;
+    if let Some(g) = guess.filter(|g| *g > 0.0 && g.is_finite()) {
+        let k = Phase::new(mid as f64 / (p + 1) as f64);
+        let below = records
+            .iter()
+            .map(|&(a, b)| (k.onset_m(a as f64, b as f64) < g) as usize)
+            .sum::<usize>();
+        if below > k_max {
+            best = g;
+        }
+    }
     let mut buf: Vec<f64> = Vec::new();
     // The records that can still count: an interval of length `L` has
     // `onset ≥ L` at every phase, so once a phase has set `best`, those with
@@ -884,7 +903,7 @@ pub fn visibility_on(
     workers: Option<&dyn SweepWorkers>,
 ) -> Visibility {
     let mut found = sweep_lines(grid, geom, pitch_rad, params, workers, 1, 0);
-    Visibility::from_swept(params, &mut found)
+    Visibility::from_swept(params, &mut found, None)
 }
 
 /// The lines `a ≡ phase (mod stride)` of `grid`, swept.
@@ -936,8 +955,9 @@ fn sweep_lines(
 }
 
 impl Visibility {
-    /// The term from what the sweep found (its records are taken).
-    fn from_swept(params: &VisibilityParams, found: &mut Swept) -> Visibility {
+    /// The term from what the sweep found (its records are taken); `guess`:
+    /// [`unseen_spacing`]'s.
+    fn from_swept(params: &VisibilityParams, found: &mut Swept, guess: Option<f64>) -> Visibility {
         let mut v = Visibility::empty(params);
         v.lines = found.surface_lines;
         v.samples = found.samples;
@@ -953,7 +973,7 @@ impl Visibility {
         if v.samples > 0 && v.unseen_fraction_max < 1.0 {
             // At most `k_max` unseen samples keeps the fraction within the target.
             let k_max = (v.unseen_fraction_max * v.samples as f64).floor() as usize;
-            v.spacing_unseen_m = unseen_spacing(&v.occluded, k_max, v.phases);
+            v.spacing_unseen_m = unseen_spacing(&v.occluded, k_max, v.phases, guess);
         }
         v
     }
@@ -980,6 +1000,8 @@ pub struct Interleave {
     next: usize,
     /// Whether the last frame swept every line (the first, or a new shape).
     full: bool,
+    /// The last frame's unseen spacing: where the next one's search starts.
+    unseen_m: Option<f64>,
 }
 
 impl Interleave {
@@ -989,6 +1011,7 @@ impl Interleave {
         self.parts.clear();
         self.next = 0;
         self.full = false;
+        self.unseen_m = None;
     }
 
     /// Whether the last frame swept every line itself.
@@ -1038,7 +1061,10 @@ pub fn visibility_interleaved(
         };
         found.add(&mut copy);
     }
-    Visibility::from_swept(params, &mut found)
+    // Most frames' answer is within a factor of the last one's.
+    let v = Visibility::from_swept(params, &mut found, state.unseen_m.map(|u| u * 1.5));
+    state.unseen_m = v.spacing_unseen_m;
+    v
 }
 
 /// [`visibility`] of a depth image sampled every `step` pixels (every valid
@@ -1313,11 +1339,25 @@ mod tests {
                         })
                         .fold(f64::INFINITY, f64::min);
                     let want = want.is_finite().then_some(want);
-                    assert_eq!(
-                        unseen_spacing(&recs, k_max, phases),
-                        want,
-                        "n {n} phases {phases} k_max {k_max}"
-                    );
+                    // Whatever the guess: below, at, just above, far above the
+                    // answer, none, or nonsense.
+                    let w = want.unwrap_or(1.0);
+                    for guess in [
+                        None,
+                        Some(w * 0.5),
+                        Some(w),
+                        Some(w * (1.0 + 1e-12)),
+                        Some(w * 1.5),
+                        Some(1e9),
+                        Some(0.0),
+                        Some(f64::NAN),
+                    ] {
+                        assert_eq!(
+                            unseen_spacing(&recs, k_max, phases, guess),
+                            want,
+                            "n {n} phases {phases} k_max {k_max} guess {guess:?}"
+                        );
+                    }
                 }
             }
         }
@@ -1328,8 +1368,8 @@ mod tests {
         // Symmetric intervals of length 2, 4, 6: at the middle phase the onset
         // is the length.
         let recs = [(-1.0f32, 1.0f32), (-2.0, 2.0), (-3.0, 3.0)];
-        assert_eq!(unseen_spacing(&recs, 0, 1), Some(2.0));
-        assert_eq!(unseen_spacing(&recs, 1, 1), Some(4.0));
-        assert_eq!(unseen_spacing(&recs, 3, 1), None);
+        assert_eq!(unseen_spacing(&recs, 0, 1, None), Some(2.0));
+        assert_eq!(unseen_spacing(&recs, 1, 1, None), Some(4.0));
+        assert_eq!(unseen_spacing(&recs, 3, 1, None), None);
     }
 }
