@@ -5,7 +5,7 @@ use super::{bad, emit, runtime, termination};
 use alfd::capture::CaptureMode;
 use alfd::config::SimPose;
 use alfd::core::{Model, Profile};
-use alfd::daemon::sim::{run_sim, run_sim_on_simulated_time, SimArgs, SimHooks};
+use alfd::daemon::sim::{run_sim, run_sim_on_simulated_time, SimArgs, SimHooks, SimSweep};
 use anyhow::Result;
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -44,6 +44,11 @@ pub struct Args {
     /// Also measure each frame against the last capture ([trigger] closed_loop).
     #[arg(long)]
     closed_loop: bool,
+    /// How the estimator sweeps the visibility term: every pixel of every
+    /// frame, or the flight's defaults (a quarter of the lines a frame); the
+    /// truth sweeps every pixel either way.
+    #[arg(long, value_enum, default_value_t = SimSweep::EveryPixel)]
+    sweep: SimSweep,
     /// Where the synthetic camera renders.
     #[arg(long, value_enum, default_value_t = SimPose::Truth)]
     pose: SimPose,
@@ -131,6 +136,7 @@ pub fn run(a: Args) -> Result<ExitCode> {
         model,
         profile,
         closed_loop: a.closed_loop,
+        sweep: a.sweep,
         pose: a.pose,
         gcs: a.gcs,
         progress: !a.no_progress && std::io::stderr().is_terminal(),

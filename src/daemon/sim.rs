@@ -22,6 +22,19 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, OnceLock};
 use std::time::Duration;
 
+/// `alfd sim --sweep`: how the flight's estimator sweeps the visibility term.
+/// Either way the truth sweeps every pixel of every frame, so the summary
+/// judges the flight default's saving.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum SimSweep {
+    /// Every pixel on every frame (the bench has the CPU).
+    #[default]
+    EveryPixel,
+    /// The daemon's defaults (`[estimator] visibility_samples_max` and
+    /// `visibility_interleave` left out of the config): what a drone runs.
+    Flight,
+}
+
 /// The scene `alfd sim` flies over when none is given.
 pub const DEFAULT_SCENE: &str = include_str!("../../scenes/district.toml");
 
@@ -44,6 +57,8 @@ pub struct SimArgs {
     pub profile: Option<Profile>,
     /// `[trigger] closed_loop`: also measure against the last capture.
     pub closed_loop: bool,
+    /// How the estimator sweeps the visibility term.
+    pub sweep: SimSweep,
     pub pose: SimPose,
     /// Forward MAVLink to a ground station (`udpout:HOST:PORT`).
     pub gcs: Option<String>,
@@ -155,6 +170,7 @@ impl Default for SimArgs {
             model: None,
             profile: None,
             closed_loop: false,
+            sweep: SimSweep::EveryPixel,
             pose: SimPose::Truth,
             gcs: None,
             progress: true,
@@ -251,17 +267,7 @@ max_range_m = {range}
 profile = "{profile}"
 
 [estimator]
-# The visibility sweep on every pixel: thinned to the flight default (80,000
-# samples, every second pixel both ways) it skips the floors of the gaps
-# between the district's houses and the views-per-point spacing came out up
-# to 5.3x too long on 20 % of the frames (docs/performance.md). The bench has
-# the CPU; on a drone it is `visibility_samples_max`'s trade.
-visibility_samples_max = {pixels}
-# Every line on every frame: spread over the flight default's 4 frames, the
-# lines swept on earlier frames miss the gaps this frame sees first (13
-# avoidable violations on this flight, docs/error-vs-runtime.md).
-visibility_interleave = 1
-# The sweep's lines on every core of the bench: the same estimate, sooner.
+{sweep}# The sweep's lines on every core of the bench: the same estimate, sooner.
 threads = {threads}
 
 [sampling]
@@ -281,7 +287,22 @@ jpeg_quality = 90
         hz = a.telemetry_hz,
         w = a.width,
         h = a.height,
-        pixels = (a.width * a.height).max(100),
+        sweep = match a.sweep {
+            SimSweep::EveryPixel => format!(
+                "# The visibility sweep on every pixel of every frame: with the flight's
+# defaults (alfd sim --sweep flight: every pixel once in four frames) this
+# flight had 13 avoidable violations, thinned to every second pixel on every
+# frame (the default until 2026-11-27) 58 (docs/error-vs-runtime.md). The
+# bench has the CPU; on a drone it is these two settings' trade.
+visibility_samples_max = {}
+visibility_interleave = 1
+",
+                (a.width * a.height).max(100)
+            ),
+            SimSweep::Flight =>
+                "# The flight's defaults for the visibility sweep (alfd sim --sweep flight).\n"
+                    .to_string(),
+        },
         threads = std::thread::available_parallelism().map_or(1, |n| n.get().min(64)),
         fps = a.fps,
         hfov = scene.survey.hfov_deg,
@@ -905,6 +926,24 @@ mod tests {
             let samples = config.estimator.visibility_samples_max;
             assert!(samples >= width * height, "{width}x{height}: {samples}");
             assert_eq!(config.estimator.visibility_interleave, 1);
+            // `--sweep flight`: the daemon's own defaults.
+            let flight = SimArgs {
+                sweep: SimSweep::Flight,
+                ..a
+            };
+            let text = sim_config_text(&flight, scene_path, Path::new("/tmp/flight"), &scene);
+            let config = crate::config::Config::from_text(&text, "sim").expect("it validates");
+            let defaults = crate::core::EstimatorParams::default();
+            assert_eq!(
+                (
+                    config.estimator.visibility_samples_max,
+                    config.estimator.visibility_interleave
+                ),
+                (
+                    defaults.visibility_samples_max,
+                    defaults.visibility_interleave
+                )
+            );
             assert_eq!(
                 crate::core::estimate::visibility_step(width * height, 1, samples),
                 1
