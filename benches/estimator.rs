@@ -11,7 +11,7 @@ use alfd::core::inverse::{fill_grid, fill_grid_counted, percentile_ranks, InvGri
 use alfd::core::occlusion::{scan, BoundaryParams};
 use alfd::core::plane;
 use alfd::core::score;
-use alfd::core::visibility::{visibility, VisibilityParams, DEFAULT_PHASES};
+use alfd::core::visibility::visibility;
 use alfd::core::{DepthData, DepthImage, EstimatorParams, Intrinsics};
 use alfd::synth::{reference_scenes, to_z16, CameraPose};
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
@@ -259,13 +259,7 @@ fn bench(c: &mut Criterion) {
             &params.depth_range,
             &mut vgrid,
         );
-        let vp = VisibilityParams {
-            unseen_fraction_max: params.quality.unseen_fraction_max,
-            views_per_point_min: params.quality.views_per_point_min,
-            phases: DEFAULT_PHASES,
-            views_band: 0.5,
-            ..VisibilityParams::default()
-        };
+        let vp = params.visibility_params();
         g.bench_function(format!("stage_visibility_step_{vstep}"), |b| {
             b.iter(|| visibility(black_box(&vgrid), &geom, pitch, &vp))
         });

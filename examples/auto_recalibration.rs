@@ -10,9 +10,11 @@
 //! `cargo run --release --example auto_recalibration [-- scenes/district.toml ...]`
 //! (default: the eight evaluation scenes and `district`).
 
+#[path = "common/survey.rs"]
+mod survey;
+
 use alfd::core::estimate::{relative_error, relative_excess};
-use alfd::core::{Decimation, DepthData, Estimator, EstimatorParams};
-use alfd::render::{render_depth, survey_camera, Frame, SensorModel};
+use alfd::core::{Decimation, Estimator, EstimatorParams};
 use alfd::scene::Scene;
 use std::hint::black_box;
 use std::path::PathBuf;
@@ -20,7 +22,6 @@ use std::time::{Duration, Instant};
 
 const W: usize = 640;
 const H: usize = 480;
-const FPS: f64 = 30.0;
 /// Recalibration periods studied, frames (`usize::MAX`: only the first frame).
 const PERIODS: [usize; 6] = [1, 30, 90, 150, 300, usize::MAX];
 const FIXED: [usize; 5] = [1, 2, 4, 8, 16];
@@ -115,27 +116,20 @@ fn main() -> anyhow::Result<()> {
         .collect();
     }
     // The daemon's estimator as `alfd sim` configures it (`[quality] profile`).
-    let base: EstimatorParams =
-        alfd::config::Config::from_text("[quality]\nprofile = \"lightfield\"\n", "sim")?.estimator;
+    // The sweep on every line of every frame: decimation's error alone, not
+    // the flight default's spreading over frames (examples/visibility_interleave.rs).
+    let base = EstimatorParams {
+        visibility_interleave: 1,
+        ..alfd::config::Config::from_text("[quality]\nprofile = \"lightfield\"\n", "sim")?.estimator
+    };
     let Decimation::Auto { budget, levels, .. } = Decimation::auto() else {
         unreachable!()
     };
     for path in &paths {
         let scene = Scene::load(path)?;
         let s = scene.survey.clone();
-        // The evaluation's sensor (2 mm, 131 m) where it reaches, else `alfd sim`'s 1 cm.
-        let far_m = s.altitude_m / s.pitch_rad.cos().max(0.2) * 2.0;
-        let sensor = if far_m <= 131.0 {
-            alfd::eval::eval_sensor()
-        } else {
-            SensorModel {
-                scale_m: 0.01,
-                max_range_m: 600.0,
-                ..SensorModel::default()
-            }
-        };
-        let step_m = s.speed_mps / FPS;
-        let n = ((s.end_x_m - s.start_x_m) / step_m).floor() as usize + 1;
+        let sensor = survey::sensor(&scene);
+        let n = survey::positions_m(&scene).count();
         // The reference sweeps every pixel (the daemon's own full estimate
         // thins the sweep to `visibility_samples_max`: the row "fixed 1").
         let mut reference = Estimator::new(EstimatorParams {
@@ -161,28 +155,9 @@ fn main() -> anyhow::Result<()> {
             .map(|&l| (l, Estimator::new(base.clone()), Tally::default()))
             .collect();
         let mut read = Duration::ZERO;
-        for k in 0..n {
-            let x = s.start_x_m + k as f64 * step_m;
-            let cam = survey_camera(&scene, x, W, H);
-            let intr = alfd::core::Intrinsics::from_focal_px(
-                W,
-                H,
-                cam.intrinsics.focal_px(),
-                Some(cam.intrinsics.principal_px()),
-            )?;
-            let frame = Frame {
-                width: W,
-                height: H,
-                rgb: Vec::new(),
-                depth_m: render_depth(&scene, &cam),
-            };
-            let img = frame.z16(&sensor);
-            let DepthData::Z16 { data, .. } = img.data() else {
-                unreachable!()
-            };
-            let t = Instant::now();
-            black_box(black_box(data).iter().map(|&z| z as u64).sum::<u64>());
-            read += t.elapsed();
+        for x in survey::positions_m(&scene) {
+            let (img, intr) = survey::z16_at(&scene, x, (W, H), &sensor)?;
+            read += survey::read_time(&img);
             let truth = reference.estimate_at(&img, &intr, s.pitch_rad, 1)?;
             for (_, est, tally) in auto.iter_mut() {
                 let t = Instant::now();

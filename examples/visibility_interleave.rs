@@ -12,9 +12,11 @@
 //! `cargo run --release --example visibility_interleave [-- scenes/district.toml ...]`
 //! (default: `district`, `alfd sim`'s scene, and the eight evaluation scenes).
 
+#[path = "common/survey.rs"]
+mod survey;
+
 use alfd::core::estimate::{relative_error, relative_excess};
-use alfd::core::{DepthData, Estimate, Estimator, EstimatorParams};
-use alfd::render::{render_depth, survey_camera, Frame, SensorModel};
+use alfd::core::{Estimate, Estimator, EstimatorParams};
 use alfd::scene::Scene;
 use std::hint::black_box;
 use std::path::PathBuf;
@@ -22,14 +24,21 @@ use std::time::{Duration, Instant};
 
 const W: usize = 640;
 const H: usize = 480;
-const FPS: f64 = 30.0;
 
 /// `(name, visibility_samples_max, visibility_interleave)`.
 const SETTINGS: [(&str, usize, usize); 6] = [
-    ("thinned to 80,000 (flight default)", 80_000, 1),
+    (
+        "thinned to 80,000, every frame (the flight default until 2026-11-27)",
+        80_000,
+        1,
+    ),
     ("thinned to 40,000", 40_000, 1),
     ("every pixel, interleave 2", usize::MAX, 2),
-    ("every pixel, interleave 4", usize::MAX, 4),
+    (
+        "every pixel, interleave 4 (the flight default)",
+        usize::MAX,
+        4,
+    ),
     ("every pixel, interleave 8", usize::MAX, 8),
     ("80,000 a frame, interleave 4", 80_000, 4),
 ];
@@ -113,20 +122,8 @@ fn main() -> anyhow::Result<()> {
     for path in &paths {
         let scene = Scene::load(path)?;
         let s = scene.survey.clone();
-        // As `examples/auto_recalibration.rs`: the evaluation's sensor where it
-        // reaches, else `alfd sim`'s 1 cm a unit.
-        let far_m = s.altitude_m / s.pitch_rad.cos().max(0.2) * 2.0;
-        let sensor = if far_m <= 131.0 {
-            alfd::eval::eval_sensor()
-        } else {
-            SensorModel {
-                scale_m: 0.01,
-                max_range_m: 600.0,
-                ..SensorModel::default()
-            }
-        };
-        let step_m = s.speed_mps / FPS;
-        let n = ((s.end_x_m - s.start_x_m) / step_m).floor() as usize + 1;
+        let sensor = survey::sensor(&scene);
+        let n = survey::positions_m(&scene).count();
         let mut reference = Estimator::new(EstimatorParams {
             visibility_samples_max: usize::MAX,
             ..base.clone()
@@ -144,28 +141,9 @@ fn main() -> anyhow::Result<()> {
             })
             .collect();
         let (mut read, mut reference_time) = (Duration::ZERO, Duration::ZERO);
-        for k in 0..n {
-            let x = s.start_x_m + k as f64 * step_m;
-            let cam = survey_camera(&scene, x, W, H);
-            let intr = alfd::core::Intrinsics::from_focal_px(
-                W,
-                H,
-                cam.intrinsics.focal_px(),
-                Some(cam.intrinsics.principal_px()),
-            )?;
-            let frame = Frame {
-                width: W,
-                height: H,
-                rgb: Vec::new(),
-                depth_m: render_depth(&scene, &cam),
-            };
-            let img = frame.z16(&sensor);
-            let DepthData::Z16 { data, .. } = img.data() else {
-                unreachable!()
-            };
-            let t = Instant::now();
-            black_box(black_box(data).iter().map(|&z| z as u64).sum::<u64>());
-            read += t.elapsed();
+        for x in survey::positions_m(&scene) {
+            let (img, intr) = survey::z16_at(&scene, x, (W, H), &sensor)?;
+            read += survey::read_time(&img);
             let t = Instant::now();
             let truth = reference.estimate_at(black_box(&img), &intr, s.pitch_rad, 1)?;
             reference_time += t.elapsed();

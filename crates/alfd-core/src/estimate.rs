@@ -15,8 +15,7 @@ use super::spacing::{
     occlusion_term_m, sspa_m,
 };
 use super::visibility::{
-    visibility_interleaved, visibility_on, Interleave, SweepWorkers, Visibility, VisibilityParams,
-    DEFAULT_PHASES,
+    visibility_interleaved, visibility_on, Interleave, SweepWorkers, Visibility,
 };
 use std::sync::Arc;
 use thiserror::Error;
@@ -677,13 +676,7 @@ impl Estimator {
                 );
                 &self.vis_grid
             };
-            let vparams = VisibilityParams {
-                unseen_fraction_max: p.quality.unseen_fraction_max,
-                views_per_point_min: p.quality.views_per_point_min,
-                phases: DEFAULT_PHASES,
-                views_band: 0.5,
-                ..VisibilityParams::default()
-            };
+            let vparams = p.visibility_params();
             let workers = self.sweep_workers.as_deref();
             let v = if stride > 1 {
                 visibility_interleaved(

@@ -218,6 +218,20 @@ pub struct EstimatorParams {
     pub visibility_interleave: usize,
 }
 
+impl EstimatorParams {
+    /// The visibility term's parameters as the estimator runs it: the quality
+    /// targets, the default phases, the middle half of the lines for the views.
+    pub fn visibility_params(&self) -> crate::visibility::VisibilityParams {
+        crate::visibility::VisibilityParams {
+            unseen_fraction_max: self.quality.unseen_fraction_max,
+            views_per_point_min: self.quality.views_per_point_min,
+            phases: crate::visibility::DEFAULT_PHASES,
+            views_band: 0.5,
+            ..crate::visibility::VisibilityParams::default()
+        }
+    }
+}
+
 /// Most frames one visibility sweep may be spread over: at 30 fps, a line's
 /// sweep at most a quarter of a second old.
 pub const VISIBILITY_INTERLEAVE_MAX: usize = 8;
