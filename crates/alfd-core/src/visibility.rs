@@ -988,8 +988,9 @@ impl Visibility {
 /// unlike a coarser grid, no line and no sample is left out for good, so the
 /// narrowest gap is found within `stride` frames (docs/error-vs-runtime.md).
 ///
-/// A frame of another shape (size, decimation, track axis) sweeps every line
-/// and starts the turn again; so does the first.
+/// A grid of another shape (frame size, decimation) sweeps every line and
+/// starts the turn again; so does the first frame, and so does one after
+/// [`Interleave::reset`] (the estimator's on a new track axis).
 #[derive(Debug, Clone, Default)]
 pub struct Interleave {
     /// `(lines, per_line, stride)` the parts were swept with.
