@@ -182,6 +182,7 @@ pub fn run(a: Args) -> Result<ExitCode> {
         r.frames_bad,
         r.estimator_busy_ns as f64 * 1e-6 / r.samples.len().max(1) as f64
     ));
+    text.push_str(&format!("sweep           {}\n", out.sweep));
     // A capture logged without its image says so in the manifest; the summary counts them,
     // so a loaded machine's lost images are not a surprise at reconstruction.
     let with_image = r.records.iter().filter(|c| c.image.is_some()).count();

@@ -210,6 +210,39 @@ pub struct SimOutcome {
     pub sim_triggers: Vec<(u64, u32)>,
     pub sim_events_lost: u64,
     pub sim_stats: firmware_sim::SimStats,
+    /// How the flight's estimator swept the visibility term ([`sweep_text`]).
+    pub sweep: String,
+}
+
+/// How an estimator with `p` sweeps the visibility term on `width × height`
+/// depth frames, in words for the summary; the truth sweeps every pixel of
+/// every frame whatever `p` says (`simreport::truth`).
+pub fn sweep_text(p: &crate::core::EstimatorParams, width: usize, height: usize) -> String {
+    if p.model != Model::Quality {
+        return "none (the quality model's term)".into();
+    }
+    let interleave = p.visibility_interleave.max(1);
+    let pixels = match p.decimation {
+        crate::core::Decimation::Fixed(n) => {
+            let n = n.max(1);
+            let samples = width.div_ceil(n) * height.div_ceil(n);
+            match crate::core::estimate::visibility_step(
+                samples.div_ceil(interleave),
+                n,
+                p.visibility_samples_max,
+            ) {
+                1 => "every pixel".to_string(),
+                step => format!("one pixel in {step} both ways"),
+            }
+        }
+        crate::core::Decimation::Auto { .. } => "at the level decimation \"auto\" takes".into(),
+    };
+    let lines = if interleave == 1 {
+        "every line on every frame".to_string()
+    } else {
+        format!("one line in {interleave} a frame, the others' newest sweeps kept")
+    };
+    format!("{pixels}, {lines}; judged against every pixel of every frame")
 }
 
 fn sim_config_text(a: &SimArgs, scene_path: &Path, flight_dir: &Path, scene: &Scene) -> String {
@@ -763,6 +796,7 @@ pub async fn run_sim_with(
         sim_triggers,
         sim_events_lost,
         sim_stats,
+        sweep: sweep_text(&config.estimator, config.depth.width, config.depth.height),
     })
 }
 
@@ -912,6 +946,39 @@ mod tests {
     /// The bench sweeps every pixel: thinned, the district's views-per-point
     /// spacing came out up to 5.3x long (docs/performance.md).
     #[test]
+    fn the_summary_says_how_the_estimator_sweeps() {
+        let p = crate::core::EstimatorParams::default();
+        let judged = "; judged against every pixel of every frame";
+        let thinned = crate::core::EstimatorParams {
+            visibility_interleave: 1,
+            ..p.clone()
+        };
+        assert_eq!(
+            sweep_text(&thinned, 640, 480),
+            format!("one pixel in 2 both ways, every line on every frame{judged}")
+        );
+        // Decimation 2 at 640 × 480: 76,800 samples, a quarter of them a frame.
+        let decimated = crate::core::EstimatorParams {
+            decimation: crate::core::Decimation::Fixed(2),
+            ..p.clone()
+        };
+        assert_eq!(
+            sweep_text(&decimated, 640, 480),
+            format!("one pixel in 2 both ways, one line in 4 a frame, the others' newest sweeps kept{judged}")
+        );
+        let auto = crate::core::EstimatorParams {
+            decimation: crate::core::Decimation::auto(),
+            ..p.clone()
+        };
+        assert!(sweep_text(&auto, 640, 480).starts_with("at the level decimation \"auto\" takes"));
+        let mmds = crate::core::EstimatorParams::with_model(Model::Mmds);
+        assert_eq!(
+            sweep_text(&mmds, 640, 480),
+            "none (the quality model's term)"
+        );
+    }
+
+    #[test]
     fn the_sim_config_sweeps_every_pixel() {
         let scene_path = Path::new("scenes/district.toml");
         let scene = Scene::load(scene_path).expect("the default scene loads");
@@ -932,6 +999,10 @@ mod tests {
                 ..a
             };
             let text = sim_config_text(&flight, scene_path, Path::new("/tmp/flight"), &scene);
+            assert_eq!(
+                sweep_text(&config.estimator, width, height),
+                "every pixel, every line on every frame; judged against every pixel of every frame"
+            );
             let config = crate::config::Config::from_text(&text, "sim").expect("it validates");
             let defaults = crate::core::EstimatorParams::default();
             assert_eq!(
@@ -942,6 +1013,18 @@ mod tests {
                 (
                     defaults.visibility_samples_max,
                     defaults.visibility_interleave
+                )
+            );
+            // A quarter of the lines a frame: every pixel of them up to
+            // 80,000 samples, more coarsely beyond.
+            let pixels = match (width, height) {
+                (1280, 720) => "one pixel in 2 both ways",
+                _ => "every pixel",
+            };
+            assert_eq!(
+                sweep_text(&config.estimator, width, height),
+                format!(
+                    "{pixels}, one line in 4 a frame, the others' newest sweeps kept; judged against every pixel of every frame"
                 )
             );
             assert_eq!(
