@@ -8,7 +8,7 @@
 //! error of every frame against full resolution, and how much longer (the unsafe
 //! side) it came out (`docs/performance.md`):
 //! `cargo run --release --example auto_recalibration [-- scenes/district.toml ...]`
-//! (default: the eight evaluation scenes and `district`).
+//! (default: `district` and the eight evaluation scenes).
 
 #[path = "common/survey.rs"]
 mod survey;
@@ -17,7 +17,6 @@ use alfd::core::estimate::{relative_error, relative_excess};
 use alfd::core::{Decimation, Estimator, EstimatorParams};
 use alfd::scene::Scene;
 use std::hint::black_box;
-use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 const W: usize = 640;
@@ -98,23 +97,7 @@ impl Tally {
 }
 
 fn main() -> anyhow::Result<()> {
-    let mut paths: Vec<PathBuf> = std::env::args().skip(1).map(PathBuf::from).collect();
-    if paths.is_empty() {
-        paths = [
-            "roof",
-            "building",
-            "tree",
-            "canyon",
-            "edifice",
-            "open",
-            "courtyard",
-            "orchard",
-            "district",
-        ]
-        .iter()
-        .map(|s| PathBuf::from(format!("scenes/{s}.toml")))
-        .collect();
-    }
+    let paths = survey::scene_paths();
     // The daemon's estimator as `alfd sim` configures it (`[quality] profile`).
     // The sweep on every line of every frame: decimation's error alone, not
     // the flight default's spreading over frames (examples/visibility_interleave.rs).

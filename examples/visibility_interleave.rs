@@ -19,7 +19,6 @@ use alfd::core::estimate::{relative_error, relative_excess};
 use alfd::core::{Estimate, Estimator, EstimatorParams};
 use alfd::scene::Scene;
 use std::hint::black_box;
-use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 const W: usize = 640;
@@ -100,23 +99,7 @@ impl Tally {
 }
 
 fn main() -> anyhow::Result<()> {
-    let mut paths: Vec<PathBuf> = std::env::args().skip(1).map(PathBuf::from).collect();
-    if paths.is_empty() {
-        paths = [
-            "district",
-            "roof",
-            "building",
-            "tree",
-            "canyon",
-            "edifice",
-            "open",
-            "courtyard",
-            "orchard",
-        ]
-        .iter()
-        .map(|s| PathBuf::from(format!("scenes/{s}.toml")))
-        .collect();
-    }
+    let paths = survey::scene_paths();
     let base: EstimatorParams =
         alfd::config::Config::from_text("[quality]\nprofile = \"lightfield\"\n", "sim")?.estimator;
     for path in &paths {

@@ -67,3 +67,19 @@ pub fn read_time(img: &DepthImage) -> Duration {
     black_box(black_box(data).iter().map(|&z| z as u64).sum::<u64>());
     t.elapsed()
 }
+
+/// The scene files named on the command line, else `alfd sim`'s `district`
+/// and the evaluation's eight (`alfd::eval::SCENES`, in its table order).
+pub fn scene_paths() -> Vec<std::path::PathBuf> {
+    let named: Vec<std::path::PathBuf> = std::env::args()
+        .skip(1)
+        .map(std::path::PathBuf::from)
+        .collect();
+    if !named.is_empty() {
+        return named;
+    }
+    std::iter::once("district")
+        .chain(alfd::eval::SCENES)
+        .map(|s| std::path::PathBuf::from(format!("scenes/{s}.toml")))
+        .collect()
+}
