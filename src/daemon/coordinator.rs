@@ -483,15 +483,7 @@ impl Coordinator {
             LinkEvent::CameraTrigger {
                 mono_ns: Some(t), ..
             } if self.config.capture.mode == CaptureMode::AutopilotDistance => {
-                let tightest_m = self.since_picture.on_picture(t);
-                self.locate(
-                    &mut out,
-                    Asked::Autopilot {
-                        from: None,
-                        tightest_m,
-                    },
-                    t,
-                );
+                self.autopilot_picture(&mut out, None, t);
             }
             LinkEvent::CameraTrigger { mono_ns: None, .. }
                 if self.config.capture.mode == CaptureMode::AutopilotDistance =>
@@ -551,12 +543,7 @@ impl Coordinator {
                     && self.is_autopilot(from);
                 if autopilot {
                     // ArduPilot's MAVLinkCamV2: its distance trigger's picture.
-                    let tightest_m = self.since_picture.on_picture(now.mono_ns);
-                    let asked = Asked::Autopilot {
-                        from: Some(from),
-                        tightest_m,
-                    };
-                    self.locate(out, asked, now.mono_ns);
+                    self.autopilot_picture(out, Some(from), now.mono_ns);
                     return;
                 }
                 self.report.command_captures += 1;
@@ -577,6 +564,14 @@ impl Coordinator {
         self.config.link.as_ref().is_some_and(|l| {
             l.accept_system_ids.first() == Some(&from.0) && l.autopilot_component_id == from.1
         }) || from.1 == 1
+    }
+
+    /// The autopilot's distance trigger took a picture at `mono_ns` (`from`: the
+    /// component that said so, `None`: CAMERA_TRIGGER): it closes the interval
+    /// since the last one, whose tightest spacing the record carries.
+    fn autopilot_picture(&mut self, out: &mut Vec<Action>, from: Option<(u8, u8)>, mono_ns: u64) {
+        let tightest_m = self.since_picture.on_picture(mono_ns);
+        self.locate(out, Asked::Autopilot { from, tightest_m }, mono_ns);
     }
 
     fn locate(&mut self, out: &mut Vec<Action>, asked: Asked, mono_ns: u64) {

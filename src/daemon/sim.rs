@@ -221,21 +221,18 @@ pub fn sweep_text(p: &crate::core::EstimatorParams, width: usize, height: usize)
     if p.model != Model::Quality {
         return "none (the quality model's term)".into();
     }
-    let interleave = p.visibility_interleave.max(1);
-    let pixels = match p.decimation {
-        crate::core::Decimation::Fixed(n) => {
-            let n = n.max(1);
-            let samples = width.div_ceil(n) * height.div_ceil(n);
-            match crate::core::estimate::visibility_step(
-                samples.div_ceil(interleave),
-                n,
-                p.visibility_samples_max,
-            ) {
-                1 => "every pixel".to_string(),
-                step => format!("one pixel in {step} both ways"),
-            }
+    // The estimator's own choice, on its grid of every `n`-th pixel.
+    let n = match p.decimation {
+        crate::core::Decimation::Fixed(n) => n.max(1),
+        crate::core::Decimation::Auto { .. } => 1,
+    };
+    let (interleave, step) = p.visibility_sampling(width.div_ceil(n) * height.div_ceil(n), n, true);
+    let pixels = match (&p.decimation, step) {
+        (crate::core::Decimation::Auto { .. }, _) => {
+            "at the level decimation \"auto\" takes".to_string()
         }
-        crate::core::Decimation::Auto { .. } => "at the level decimation \"auto\" takes".into(),
+        (_, 1) => "every pixel".to_string(),
+        (_, step) => format!("one pixel in {step} both ways"),
     };
     let lines = if interleave == 1 {
         "every line on every frame".to_string()

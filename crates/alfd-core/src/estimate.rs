@@ -653,17 +653,7 @@ impl Estimator {
             // both ways. Thinning the lines alone (every sample along track)
             // was measured worse: the views bound is a minimum over lines, and
             // skipped lines miss the narrowest gap (docs/error-vs-runtime.md).
-            // Interleaved, a frame sweeps one in `stride` lines: the bound is on those.
-            let stride = if in_flight {
-                p.visibility_interleave.max(1)
-            } else {
-                1
-            };
-            let vstep = visibility_step(
-                self.grid.samples().div_ceil(stride),
-                step,
-                p.visibility_samples_max,
-            );
+            let (stride, vstep) = p.visibility_sampling(self.grid.samples(), step, in_flight);
             let vgrid = if vstep == step {
                 &self.grid
             } else {

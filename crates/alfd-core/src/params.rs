@@ -230,6 +230,30 @@ impl EstimatorParams {
             ..crate::visibility::VisibilityParams::default()
         }
     }
+
+    /// How one frame sweeps the visibility term on a grid of `samples` at
+    /// `step`, as `(stride, step)`: one in `stride` lines (`visibility_interleave`
+    /// for a frame of a flight, else every line), every `step`-th pixel both
+    /// ways, coarser than the grid where the frame's share of the lines would
+    /// exceed `visibility_samples_max`.
+    pub fn visibility_sampling(
+        &self,
+        samples: usize,
+        step: usize,
+        in_flight: bool,
+    ) -> (usize, usize) {
+        let stride = if in_flight {
+            self.visibility_interleave.max(1)
+        } else {
+            1
+        };
+        let vstep = crate::estimate::visibility_step(
+            samples.div_ceil(stride),
+            step,
+            self.visibility_samples_max,
+        );
+        (stride, vstep)
+    }
 }
 
 /// Most frames one visibility sweep may be spread over: at 30 fps, a line's

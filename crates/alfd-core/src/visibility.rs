@@ -1040,7 +1040,7 @@ pub fn visibility_interleaved(
         return visibility_on(grid, geom, pitch_rad, params, workers);
     }
     let key = (grid.lines, grid.per_line, stride);
-    if state.key != Some(key) || state.parts.len() != stride {
+    if state.key != Some(key) {
         state.parts = (0..stride)
             .map(|phase| sweep_lines(grid, geom, pitch_rad, params, workers, stride, phase))
             .collect();
