@@ -24,22 +24,26 @@ use std::time::{Duration, Instant};
 const W: usize = 640;
 const H: usize = 480;
 
-/// `(name, visibility_samples_max, visibility_interleave)`.
-const SETTINGS: [(&str, usize, usize); 6] = [
+/// `(name, visibility_samples_max, visibility_interleave, visibility_refresh)`.
+const SETTINGS: [(&str, usize, usize, bool); 8] = [
     (
         "thinned to 80,000, every frame (the flight default until 2026-11-27)",
         80_000,
         1,
+        false,
     ),
-    ("thinned to 40,000", 40_000, 1),
-    ("every pixel, interleave 2", usize::MAX, 2),
+    ("thinned to 40,000", 40_000, 1, false),
+    ("every pixel, interleave 2", usize::MAX, 2, false),
+    ("every pixel, interleave 2, refreshing", usize::MAX, 2, true),
+    ("every pixel, interleave 4", usize::MAX, 4, false),
     (
-        "every pixel, interleave 4 (the flight default)",
+        "every pixel, interleave 4, refreshing (the flight default)",
         usize::MAX,
         4,
+        true,
     ),
-    ("every pixel, interleave 8", usize::MAX, 8),
-    ("80,000 a frame, interleave 4", 80_000, 4),
+    ("every pixel, interleave 8", usize::MAX, 8, false),
+    ("every pixel, interleave 8, refreshing", usize::MAX, 8, true),
 ];
 
 #[derive(Default)]
@@ -53,11 +57,14 @@ struct Tally {
     long_frames: usize,
     /// The worst frame: position, excess, the views spacing reference → setting.
     worst: Option<(f64, f64, String)>,
+    /// Frames that swept every line, the first one included.
+    every_line: usize,
 }
 
 impl Tally {
     fn add(&mut self, x_m: f64, reference: &Estimate, e: &Estimate) {
         let (a, b) = (&reference.spacing, &e.spacing);
+        self.every_line += e.visibility.is_some_and(|v| v.interleave == 1) as usize;
         self.errors
             .push(relative_error(b.permissible_m, a.permissible_m));
         let excess = relative_excess(b.permissible_m, a.permissible_m);
@@ -85,9 +92,10 @@ impl Tally {
         e.sort_by(f64::total_cmp);
         let at = |q: f64| e[((e.len() - 1) as f64 * q).round() as usize];
         println!(
-            "| {name} | {:.1}× | {:.2}× | {:.2} % | {:.2} % | {:.1} % | {} of {} | {:.1} % |",
+            "| {name} | {:.1}× | {:.2}× | {} | {:.2} % | {:.2} % | {:.1} % | {} of {} | {:.1} % |",
             self.time.as_secs_f64() / read.as_secs_f64(),
             reference.as_secs_f64() / self.time.as_secs_f64(),
+            self.every_line,
             100.0 * at(0.5),
             100.0 * at(1.0),
             100.0 * self.long,
@@ -113,10 +121,11 @@ fn main() -> anyhow::Result<()> {
         });
         let mut runs: Vec<(&str, Estimator, Tally)> = SETTINGS
             .iter()
-            .map(|&(name, samples, interleave)| {
+            .map(|&(name, samples, interleave, refresh)| {
                 let params = EstimatorParams {
                     visibility_samples_max: samples,
                     visibility_interleave: interleave,
+                    visibility_refresh: refresh,
                     ..base.clone()
                 };
                 params.validate().expect("a valid setting");
@@ -146,8 +155,8 @@ fn main() -> anyhow::Result<()> {
             read.as_secs_f64() * 1e6 / n as f64,
             reference_time.as_secs_f64() * 1e3 / n as f64,
         );
-        println!("| visibility sweep | time / read | speed-up vs every pixel | spacing error median | worst | longer: worst | frames over 5 % longer | views spacing longer: worst |");
-        println!("|---|---:|---:|---:|---:|---:|---:|---:|");
+        println!("| visibility sweep | time / read | speed-up vs every pixel | frames sweeping every line | spacing error median | worst | longer: worst | frames over 5 % longer | views spacing longer: worst |");
+        println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|");
         for (name, _, tally) in &runs {
             tally.row(name, read, reference_time);
         }

@@ -214,6 +214,7 @@ pub struct RawEstimator {
     pub sspa_trim_sigma: Option<f64>,
     pub visibility_samples_max: Option<i64>,
     pub visibility_interleave: Option<i64>,
+    pub visibility_refresh: Option<bool>,
     pub threads: Option<i64>,
 }
 
@@ -363,6 +364,7 @@ impl RawConfig {
         if let Some(n) = e.visibility_interleave {
             p.visibility_interleave = count("estimator.visibility_interleave", n)?;
         }
+        set!(e.visibility_refresh, p.visibility_refresh);
         set!(e.valid_fraction_min, p.valid_fraction_min);
         set!(e.percentile_low, p.percentile_low);
         set!(e.percentile_high, p.percentile_high);
@@ -983,6 +985,16 @@ mod tests {
                 .visibility_interleave,
             4
         );
+        assert!(
+            Config::from_text("", "x.toml")
+                .unwrap()
+                .estimator
+                .visibility_refresh
+        );
+        let c = Config::from_text("[estimator]\nvisibility_refresh = false\n", "x.toml").unwrap();
+        assert!(!c.estimator.visibility_refresh);
+        let e = Config::from_text("[estimator]\nvisibility_refresh = 1\n", "x.toml").unwrap_err();
+        assert!(e.to_string().contains("visibility_refresh"), "{e}");
     }
 
     #[test]

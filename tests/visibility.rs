@@ -9,7 +9,7 @@ use alfd::core::inverse::{fill_grid, DepthRange, InvGrid};
 use alfd::core::visibility::{
     line_intervals, visibility, visibility_interleaved, visibility_of_image, visibility_on, End,
     Interleave, Interval, LineRun, LineScratch, SweepWorkers, TrackRays, Visibility,
-    VisibilityParams,
+    VisibilityParams, INTERLEAVE_REFRESH_REL,
 };
 use alfd::core::{DepthData, DepthImage, Intrinsics, TrackAxis};
 use alfd::synth::{Aabb, BoxWorld, CameraPose};
@@ -798,12 +798,27 @@ proptest! {
         let s = stride.min(ga.lines.max(1));
         let per = ga.per_line;
         let mut spliced = ga.clone();
+        // Refreshing: the same, but a frame whose lines tightened since their
+        // last sweep is B's own sweep; the same frame over and over never is.
+        let mut fresh = Interleave::refreshing(INTERLEAVE_REFRESH_REL);
+        for _ in 0..=s {
+            let v = visibility_interleaved(&ga, &geom, c.pitch_rad, &p, workers, stride, &mut fresh);
+            same_term(&v, &visibility(&ga, &geom, c.pitch_rad, &p))?;
+        }
+        prop_assert_eq!(fresh.refreshed_frames(), 0);
+        let mut refreshed = false;
         for j in 0..s {
             let v = visibility_interleaved(&gb, &geom, c.pitch_rad, &p, workers, stride, &mut state);
             for a in (0..ga.lines).filter(|a| a % s == j) {
                 spliced.w[a * per..(a + 1) * per].copy_from_slice(gb.line(a));
             }
             same_term(&v, &visibility(&spliced, &geom, c.pitch_rad, &p))?;
+            let before = fresh.refreshed_frames();
+            let r = visibility_interleaved(&gb, &geom, c.pitch_rad, &p, workers, stride, &mut fresh);
+            refreshed |= fresh.refreshed_frames() > before;
+            // (One line: stride 1, every frame sweeps it.)
+            prop_assert_eq!(fresh.swept_every_line(), s == 1 || fresh.refreshed_frames() > before);
+            same_term(&r, &visibility(if refreshed { &gb } else { &spliced }, &geom, c.pitch_rad, &p))?;
         }
         same_term(&visibility(&spliced, &geom, c.pitch_rad, &p), &visibility(&gb, &geom, c.pitch_rad, &p))?;
         // Stride 1 is the frame's own sweep, and forgets the others.

@@ -236,6 +236,10 @@ pub fn sweep_text(p: &crate::core::EstimatorParams, width: usize, height: usize)
     };
     let lines = if interleave == 1 {
         "every line on every frame".to_string()
+    } else if p.visibility_refresh {
+        format!(
+            "one line in {interleave} a frame, the others' newest sweeps kept, every line when a frame's own lines tighten"
+        )
     } else {
         format!("one line in {interleave} a frame, the others' newest sweeps kept")
     };
@@ -961,6 +965,14 @@ mod tests {
         };
         assert_eq!(
             sweep_text(&decimated, 640, 480),
+            format!("one pixel in 2 both ways, one line in 4 a frame, the others' newest sweeps kept, every line when a frame's own lines tighten{judged}")
+        );
+        let unrefreshed = crate::core::EstimatorParams {
+            visibility_refresh: false,
+            ..decimated.clone()
+        };
+        assert_eq!(
+            sweep_text(&unrefreshed, 640, 480),
             format!("one pixel in 2 both ways, one line in 4 a frame, the others' newest sweeps kept{judged}")
         );
         let auto = crate::core::EstimatorParams {
@@ -1005,11 +1017,13 @@ mod tests {
             assert_eq!(
                 (
                     config.estimator.visibility_samples_max,
-                    config.estimator.visibility_interleave
+                    config.estimator.visibility_interleave,
+                    config.estimator.visibility_refresh
                 ),
                 (
                     defaults.visibility_samples_max,
-                    defaults.visibility_interleave
+                    defaults.visibility_interleave,
+                    defaults.visibility_refresh
                 )
             );
             // A quarter of the lines a frame: every pixel of them up to
@@ -1021,7 +1035,7 @@ mod tests {
             assert_eq!(
                 sweep_text(&config.estimator, width, height),
                 format!(
-                    "{pixels}, one line in 4 a frame, the others' newest sweeps kept; judged against every pixel of every frame"
+                    "{pixels}, one line in 4 a frame, the others' newest sweeps kept, every line when a frame's own lines tighten; judged against every pixel of every frame"
                 )
             );
             assert_eq!(

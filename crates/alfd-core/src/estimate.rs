@@ -16,6 +16,7 @@ use super::spacing::{
 };
 use super::visibility::{
     visibility_interleaved, visibility_on, Interleave, SweepWorkers, Visibility,
+    INTERLEAVE_REFRESH_REL,
 };
 use std::sync::Arc;
 use thiserror::Error;
@@ -386,6 +387,11 @@ struct AutoLevel {
 impl Estimator {
     /// `params` must have passed [`EstimatorParams::validate`].
     pub fn new(params: EstimatorParams) -> Self {
+        let interleave = if params.visibility_refresh {
+            Interleave::refreshing(INTERLEAVE_REFRESH_REL)
+        } else {
+            Interleave::default()
+        };
         Estimator {
             params,
             grid: InvGrid::default(),
@@ -395,7 +401,7 @@ impl Estimator {
             vis_grid: InvGrid::default(),
             auto: None,
             sweep_workers: None,
-            interleave: Interleave::default(),
+            interleave,
         }
     }
 

@@ -216,6 +216,11 @@ pub struct EstimatorParams {
     /// `visibility::Interleave`). `visibility_samples_max` then bounds the
     /// samples one frame sweeps.
     pub visibility_interleave: usize,
+    /// With `visibility_interleave` above 1, a frame whose own lines came out
+    /// tighter than on their last sweep sweeps every line
+    /// (`visibility::Interleave::refreshing`): where an occluder enters the view
+    /// the kept lines are stale.
+    pub visibility_refresh: bool,
 }
 
 impl EstimatorParams {
@@ -299,6 +304,7 @@ impl Default for EstimatorParams {
             // second pixel both ways on every frame did, and misses far less
             // (docs/error-vs-runtime.md, "Spreading the sweep over frames").
             visibility_interleave: 4,
+            visibility_refresh: true,
         }
     }
 }

@@ -903,6 +903,25 @@ fn a_flights_sweep_spread_over_frames_takes_each_line_from_its_newest_frame() {
     let third = est.estimate(&wide, &intr, 0.0).unwrap().0;
     assert_eq!(vis(&third).interval_min_m, Some(w_min));
     assert_eq!(third.spacing, w.spacing);
+    // Narrow again: the lines swept came out tighter than on their last sweep
+    // (wide), so the kept ones are stale too and every line is swept.
+    let fourth = est.estimate(&narrow, &intr, 0.0).unwrap().0;
+    assert_eq!(vis(&fourth).interleave, 1);
+    assert_eq!(fourth, n);
+    // Without the refresh, half the lines are still the wide frame's.
+    let mut kept = Estimator::new(EstimatorParams {
+        visibility_refresh: false,
+        ..params.clone()
+    });
+    for img in [&narrow, &wide, &wide] {
+        kept.estimate(img, &intr, 0.0).unwrap();
+    }
+    let stale = kept.estimate(&narrow, &intr, 0.0).unwrap().0;
+    assert_eq!(vis(&stale).interleave, 2);
+    assert_ne!(vis(&stale).occluded_samples, vis(&n).occluded_samples);
+    // Loosening never sweeps every line: wide after narrow keeps the turn.
+    let fifth = est.estimate(&wide, &intr, 0.0).unwrap().0;
+    assert_eq!(vis(&fifth).interleave, 2);
     // Another axis starts again from every line.
     est.set_track_axis(TrackAxis::Columns);
     let turned = est.estimate(&narrow, &intr, 0.0).unwrap().0;

@@ -829,6 +829,21 @@ impl Swept {
     }
 }
 
+impl Swept {
+    /// Whether these lines came out tighter than on their sweep `before`
+    /// ([`Interleave::refreshing`]): a shortest interval shorter, or a share
+    /// of occluded samples larger, by more than `rel`.
+    fn tighter_than(&self, before: &Swept, rel: f64) -> bool {
+        let shorter = |now: f64, then: f64| now < then * (1.0 - rel);
+        // Shares compared as cross products: no division by an empty sweep.
+        let more_occluded = self.occluded_samples as f64 * before.samples as f64
+            > before.occluded_samples as f64 * self.samples as f64 * (1.0 + rel);
+        shorter(self.min_all, before.min_all)
+            || shorter(self.min_occ, before.min_occ)
+            || more_occluded
+    }
+}
+
 impl LineRun {
     fn new(lines: std::ops::Range<usize>, stride: usize, phase: usize) -> LineRun {
         LineRun {
@@ -991,6 +1006,9 @@ impl Visibility {
 /// A grid of another shape (frame size, decimation) sweeps every line and
 /// starts the turn again; so does the first frame, and so does one after
 /// [`Interleave::reset`] (the estimator's on a new track axis).
+///
+/// [`Interleave::refreshing`] also sweeps every line on a frame whose own lines
+/// came out tighter than on their last sweep (see [`Interleave::refreshing`]).
 #[derive(Debug, Clone, Default)]
 pub struct Interleave {
     /// `(lines, per_line, stride)` the parts were swept with.
@@ -1003,9 +1021,34 @@ pub struct Interleave {
     full: bool,
     /// The last frame's unseen spacing: where the next one's search starts.
     unseen_m: Option<f64>,
+    /// [`Interleave::refreshing`]'s margin (`None`: the turn alone).
+    refresh_rel: Option<f64>,
+    /// Frames that swept every line because their own lines had tightened.
+    refreshed: u64,
 }
 
+/// The estimator's margin for [`Interleave::refreshing`]: a class of lines 5 %
+/// tighter than `stride` frames before sweeps every line. Not tuned: it is the
+/// error by which `examples/visibility_interleave.rs` counts a frame's spacing
+/// too long, fixed before the rule was measured (docs/error-vs-runtime.md).
+pub const INTERLEAVE_REFRESH_REL: f64 = 0.05;
+
 impl Interleave {
+    /// Also sweeps every line on a frame whose class of lines, against its own
+    /// last sweep `stride` frames before, has a shortest interval (of any
+    /// sample, or of an occluded one, in the views band) shorter by more than
+    /// `rel`, or a share of occluded samples larger by more than `rel`. The
+    /// other classes are older still, and where the scene tightens (an
+    /// occluder entering the view) their kept sweeps would lengthen the spacing
+    /// for up to `stride − 1` frames; where it loosens, kept sweeps only
+    /// shorten it. A still scene costs what the turn costs.
+    pub fn refreshing(rel: f64) -> Interleave {
+        Interleave {
+            refresh_rel: Some(if rel.is_finite() { rel.max(0.0) } else { 0.0 }),
+            ..Interleave::default()
+        }
+    }
+
     /// Forgets every part: the next frame sweeps every line.
     pub fn reset(&mut self) {
         self.key = None;
@@ -1013,6 +1056,11 @@ impl Interleave {
         self.next = 0;
         self.full = false;
         self.unseen_m = None;
+    }
+
+    /// Frames so far that swept every line because their lines had tightened.
+    pub fn refreshed_frames(&self) -> u64 {
+        self.refreshed
     }
 
     /// Whether the last frame swept every line itself.
@@ -1048,9 +1096,19 @@ pub fn visibility_interleaved(
         state.next = 0;
         state.full = true;
     } else {
-        state.full = false;
         let phase = state.next;
-        state.parts[phase] = sweep_lines(grid, geom, pitch_rad, params, workers, stride, phase);
+        let fresh = sweep_lines(grid, geom, pitch_rad, params, workers, stride, phase);
+        state.full = state
+            .refresh_rel
+            .is_some_and(|rel| fresh.tighter_than(&state.parts[phase], rel));
+        state.parts[phase] = fresh;
+        if state.full {
+            state.refreshed += 1;
+            for other in (0..stride).filter(|&c| c != phase) {
+                state.parts[other] =
+                    sweep_lines(grid, geom, pitch_rad, params, workers, stride, other);
+            }
+        }
         state.next = (phase + 1) % stride;
     }
     let mut found = Swept::default();
