@@ -268,6 +268,10 @@ pub async fn estimator_loop(
             suspended: estimate.is_none(),
             captured: record.is_some(),
             busy_ns: busy_from.elapsed().as_nanos() as u64,
+            swept_every_line: estimate
+                .as_ref()
+                .and_then(|e| e.visibility)
+                .is_some_and(|v| v.interleave == 1),
         };
         report.busy_ns += sample.busy_ns;
         if let Some(cb) = ctx.on_sample.as_mut() {

@@ -10,7 +10,7 @@ use std::path::PathBuf;
 use std::sync::atomic::Ordering;
 
 /// What the estimator made of one depth frame.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, Default, PartialEq)]
 pub struct FrameSample {
     pub mono_ns: u64,
     /// Local NED of the pose used, when there was one.
@@ -21,6 +21,9 @@ pub struct FrameSample {
     pub captured: bool,
     /// Wall time the estimator spent on the frame (ns).
     pub busy_ns: u64,
+    /// The frame's visibility sweep took every line itself (not the kept
+    /// sweeps of earlier frames: `[estimator] visibility_interleave`).
+    pub swept_every_line: bool,
 }
 
 /// Counters of a run, and what it logged.

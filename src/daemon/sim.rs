@@ -243,8 +243,11 @@ pub fn sweep_text(p: &crate::core::EstimatorParams, width: usize, height: usize)
     } else {
         format!("one line in {interleave} a frame, the others' newest sweeps kept")
     };
-    format!("{pixels}, {lines}; judged against every pixel of every frame")
+    format!("{pixels}, {lines}{JUDGED}")
 }
+
+/// The end of [`sweep_text`]: what the sim's truth sweeps.
+const JUDGED: &str = "; judged against every pixel of every frame";
 
 fn sim_config_text(a: &SimArgs, scene_path: &Path, flight_dir: &Path, scene: &Scene) -> String {
     let mode = match a.mode {
@@ -785,6 +788,11 @@ pub async fn run_sim_with(
             Ok(Ok(r)) => r,
             _ => (Vec::new(), Vec::new(), u64::MAX),
         };
+    let sweep = sweep_text(&config.estimator, config.depth.width, config.depth.height);
+    let sweep = match sweep.strip_suffix(JUDGED) {
+        Some(how) => format!("{how}{}{JUDGED}", swept_every_line_text(&report.samples)),
+        None => sweep,
+    };
     Ok(SimOutcome {
         flight_dir,
         summary,
@@ -797,8 +805,22 @@ pub async fn run_sim_with(
         sim_triggers,
         sim_events_lost,
         sim_stats,
-        sweep: sweep_text(&config.estimator, config.depth.width, config.depth.height),
+        sweep,
     })
+}
+
+/// How many estimated frames swept every line, where not all did (an
+/// interleaved sweep: its first frame, and the frames whose lines tightened).
+fn swept_every_line_text(samples: &[FrameSample]) -> String {
+    let swept = samples.iter().filter(|s| !s.suspended);
+    let (n, every) = swept.fold((0usize, 0usize), |(n, e), s| {
+        (n + 1, e + s.swept_every_line as usize)
+    });
+    if every == n {
+        String::new()
+    } else {
+        format!(" (every line on {every} of {n} frames)")
+    }
 }
 
 /// True poses at the daemon's frame instants, with the distance flown along
@@ -949,7 +971,7 @@ mod tests {
     #[test]
     fn the_summary_says_how_the_estimator_sweeps() {
         let p = crate::core::EstimatorParams::default();
-        let judged = "; judged against every pixel of every frame";
+        let judged = JUDGED;
         let thinned = crate::core::EstimatorParams {
             visibility_interleave: 1,
             ..p.clone()
@@ -984,6 +1006,29 @@ mod tests {
         assert_eq!(
             sweep_text(&mmds, 640, 480),
             "none (the quality model's term)"
+        );
+    }
+
+    #[test]
+    fn the_summary_counts_the_frames_that_swept_every_line() {
+        let frame = |suspended, swept_every_line| FrameSample {
+            suspended,
+            swept_every_line,
+            ..FrameSample::default()
+        };
+        let all = [frame(false, true), frame(true, false), frame(false, true)];
+        assert_eq!(swept_every_line_text(&all), "");
+        assert_eq!(swept_every_line_text(&[]), "");
+        let some = [
+            frame(false, true),
+            frame(false, false),
+            frame(true, false),
+            frame(false, false),
+            frame(false, true),
+        ];
+        assert_eq!(
+            swept_every_line_text(&some),
+            " (every line on 2 of 4 frames)"
         );
     }
 
