@@ -1082,16 +1082,32 @@ pub fn evaluate_scene(
         // The geometry of at most GEO_VIEWS views per interval, evenly spread
         // and always the middle one: neighbouring dense views are 4 cm apart,
         // and classifying all of them was most of the run.
-        let geo_of = |tasks: &[(usize, usize, usize)]| -> Vec<Geo> {
+        // Kept per view and interval: the bisection and the target's check
+        // ask again for spacings the ladder swept, and the ladder's scores
+        // classify views it also needs (each was classified twice or more).
+        let mut known: HashMap<(usize, usize, usize), Geo> = HashMap::new();
+        let geo_of = |tasks: &[(usize, usize, usize)],
+                      known: &mut HashMap<(usize, usize, usize), Geo>|
+         -> Vec<Geo> {
             let picked: Vec<(usize, usize, usize)> = tasks
                 .iter()
                 .copied()
                 .filter(|&(i, j, v)| geo_view_picked(i, j, v))
                 .collect();
-            picked
+            let missing: Vec<(usize, usize, usize)> = picked
+                .iter()
+                .copied()
+                .filter(|t| !known.contains_key(t))
+                .collect();
+            let computed: Vec<((usize, usize, usize), Geo)> = missing
                 .par_iter()
-                .map(|&(i, j, v)| Geo::of(&truth.classify(&views[v], &views[i], &views[j], false)))
-                .collect()
+                .map(|&(i, j, v)| {
+                    let g = Geo::of(&truth.classify(&views[v], &views[i], &views[j], false));
+                    ((i, j, v), g)
+                })
+                .collect();
+            known.extend(computed);
+            picked.iter().map(|t| known[t]).collect()
         };
         let meets_c = |g: &GeoStats, c: usize| {
             if c == 0 {
@@ -1104,7 +1120,6 @@ pub fn evaluate_scene(
         let mut fail_k: [Option<usize>; 2] = [None, None];
         for k in ladder(b - a) {
             let tasks = tasks_at(k);
-            let geos = geo_of(&tasks);
             let q = res.quality_views.min(tasks.len());
             let picked: Vec<(usize, usize, usize)> = (0..q)
                 .map(|t| tasks[(t * (tasks.len() - 1)) / (q - 1).max(1)])
@@ -1118,6 +1133,8 @@ pub fn evaluate_scene(
                     sc
                 })
                 .collect();
+            known.extend(picked.iter().zip(&scores).map(|(&t, s)| (t, s.geo)));
+            let geos = geo_of(&tasks, &mut known);
             let m = [
                 mean(scores.iter().map(|s| s.psnr_db[0])),
                 mean(scores.iter().map(|s| s.psnr_db[1])),
@@ -1188,7 +1205,7 @@ pub fn evaluate_scene(
             if let (Some(mut lo), Some(mut hi)) = (ok_k[c], fail_k[c]) {
                 while hi - lo > 1 {
                     let mid = (lo + hi) / 2;
-                    if meets_c(&GeoStats::of(geo_of(&tasks_at(mid)).iter()), c) {
+                    if meets_c(&GeoStats::of(geo_of(&tasks_at(mid), &mut known).iter()), c) {
                         lo = mid;
                     } else {
                         hi = mid;
@@ -1209,7 +1226,7 @@ pub fn evaluate_scene(
             let vpp_k = vpp_m.map_or(usize::MAX, |v| (v / step + 1e-9).floor() as usize);
             let mut k = p.min(u).min(vpp_k).min(b - a);
             while k >= 2 {
-                let g = GeoStats::of(geo_of(&tasks_at(k)).iter());
+                let g = GeoStats::of(geo_of(&tasks_at(k), &mut known).iter());
                 if meets_c(&g, 0) && meets_c(&g, 1) {
                     at_target = Some(g);
                     target_m = Some(k as f64 * step);
