@@ -827,9 +827,7 @@ impl Swept {
             self.occluded.extend_from_slice(&other.occluded);
         }
     }
-}
 
-impl Swept {
     /// Whether these lines came out tighter than on their sweep `before`
     /// ([`Interleave::refreshing`]): a shortest interval shorter, or a share
     /// of occluded samples larger, by more than `rel`.
