@@ -102,7 +102,9 @@ fn bench(c: &mut Criterion) {
         });
         // A frame of a flight at the defaults (`Estimator::estimate`): the sweep
         // on every pixel of a quarter of the lines (`visibility_interleave`),
-        // the other lines' newest sweeps kept.
+        // the other lines' newest sweeps kept. The same frame again never
+        // tightens, so it never sweeps every line (`visibility_refresh`): a
+        // flight's frames are `examples/drone_load.rs`'s to time.
         let mut est_flight = Estimator::new(params.clone());
         g.bench_function("estimate_in_flight", |b| {
             b.iter(|| est_flight.estimate(black_box(&img), &intr, pitch).unwrap())
