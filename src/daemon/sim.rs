@@ -789,6 +789,8 @@ pub async fn run_sim_with(
             _ => (Vec::new(), Vec::new(), u64::MAX),
         };
     let sweep = sweep_text(&config.estimator, config.depth.width, config.depth.height);
+    // Only a sweep's text ends in JUDGED: a model without the visibility term
+    // (no frame sweeps a line) gets no count, rather than "0 of n".
     let sweep = match sweep.strip_suffix(JUDGED) {
         Some(how) => format!("{how}{}{JUDGED}", swept_every_line_text(&report.samples)),
         None => sweep,
