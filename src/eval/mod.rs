@@ -21,6 +21,7 @@ use crate::scene::{Scene, SceneError};
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 use recon::{Geometry, View};
+use std::cell::RefCell;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -471,9 +472,9 @@ pub struct SceneResult {
     pub flown: Vec<FlownRun>,
     pub elapsed_s: f64,
     pub render_s: f64,
-    /// Wall time of each stage after rendering (s), in order: the sweeps,
-    /// each method's runs, the data volume at the targets, the quality model
-    /// at equal captures.
+    /// Wall time of each stage after rendering (s): the sweeps, each
+    /// method's runs, the data volume at the targets, the quality model at
+    /// equal captures (which runs before the data volume).
     pub stage_s: [f64; 4],
     /// `--colmap`: the judge's JSON per method at equal captures, or why not.
     pub colmap: Vec<(String, Result<serde_json::Value, String>)>,
@@ -631,32 +632,26 @@ struct Scorer<'a> {
     views: &'a [View],
     /// `(w_min, w_max)` of each view.
     est: &'a [(Option<f64>, Option<f64>)],
-    /// Scores per interval, and whether SSIM was computed.
-    cache: HashMap<(usize, usize), (bool, Vec<Score>)>,
+    /// Scores per in-between view `(i, j, k)`, and whether SSIM was computed:
+    /// the ladder's scored views are among the method runs' too.
+    cache: HashMap<(usize, usize, usize), (bool, Score)>,
     pb: &'a ProgressBar,
 }
 
 impl Scorer<'_> {
-    /// Scores every in-between view of the intervals not scored yet; SSIM
-    /// (the costly part) only when `with_ssim`.
-    fn ensure(&mut self, intervals: &[(usize, usize)], with_ssim: bool) {
-        let mut todo: Vec<(usize, usize)> = intervals
+    /// Scores the views `(i, j, k)` not scored yet, in parallel; SSIM (the
+    /// costly part) only when `with_ssim`.
+    fn ensure_views(&mut self, views: &[(usize, usize, usize)], with_ssim: bool) {
+        let mut tasks: Vec<(usize, usize, usize)> = views
             .iter()
             .copied()
-            .filter(|&(i, j)| {
-                j > i + 1
-                    && match self.cache.get(&(i, j)) {
-                        None => true,
-                        Some((has_ssim, _)) => with_ssim && !has_ssim,
-                    }
+            .filter(|t| match self.cache.get(t) {
+                None => true,
+                Some((has_ssim, _)) => with_ssim && !has_ssim,
             })
             .collect();
-        todo.sort_unstable();
-        todo.dedup();
-        let tasks: Vec<(usize, usize, usize)> = todo
-            .iter()
-            .flat_map(|&(i, j)| (i + 1..j).map(move |k| (i, j, k)))
-            .collect();
+        tasks.sort_unstable();
+        tasks.dedup();
         self.pb.inc_length(tasks.len() as u64);
         let (truth, views, est, pb) = (&self.truth, self.views, self.est, self.pb);
         let scores: Vec<Score> = tasks
@@ -667,11 +662,27 @@ impl Scorer<'_> {
                 s
             })
             .collect();
-        let mut it = scores.into_iter();
-        for (i, j) in todo {
-            self.cache
-                .insert((i, j), (with_ssim, it.by_ref().take(j - i - 1).collect()));
-        }
+        self.cache.extend(
+            tasks
+                .into_iter()
+                .zip(scores)
+                .map(|(t, s)| (t, (with_ssim, s))),
+        );
+    }
+
+    /// The scores of the views `(i, j, k)`, in order.
+    fn scores(&mut self, views: &[(usize, usize, usize)], with_ssim: bool) -> Vec<Score> {
+        self.ensure_views(views, with_ssim);
+        views.iter().map(|t| self.cache[t].1).collect()
+    }
+
+    /// Scores every in-between view of the intervals not scored yet.
+    fn ensure(&mut self, intervals: &[(usize, usize)], with_ssim: bool) {
+        let views: Vec<(usize, usize, usize)> = intervals
+            .iter()
+            .flat_map(|&(i, j)| (i + 1..j).map(move |k| (i, j, k)))
+            .collect();
+        self.ensure_views(&views, with_ssim);
     }
 
     /// Per-view scores of a capture list.
@@ -680,10 +691,8 @@ impl Scorer<'_> {
         self.ensure(&intervals, with_ssim);
         let mut out = vec![None; n];
         for (i, j) in intervals {
-            if let Some((_, s)) = self.cache.get(&(i, j)) {
-                for (k, sc) in (i + 1..j).zip(s) {
-                    out[k] = Some(*sc);
-                }
+            for (k, o) in out.iter_mut().enumerate().take(j).skip(i + 1) {
+                *o = self.cache.get(&(i, j, k)).map(|s| s.1);
             }
         }
         out
@@ -824,6 +833,11 @@ fn geo_view_picked(i: usize, j: usize, v: usize) -> bool {
         || (1..=GEO_VIEWS).any(|m| i + (m * (j - i) + GEO_VIEWS.div_ceil(2)) / (GEO_VIEWS + 1) == v)
 }
 
+/// The truth's geometry of in-between view `v` of the capture interval
+/// `(i, j)`, keyed `(i, j, v)`: one scene's stages ask for the same views
+/// (the sweeps, the method runs' scores, each search of the data volume).
+type GeoCache = HashMap<(usize, usize, usize), Geo>;
+
 /// The truth's worst unseen fraction and parallax span over the in-between
 /// views of capture intervals (every view, or the sweeps' [`GEO_VIEWS`]),
 /// kept per interval: the plans a search tries share most of their intervals.
@@ -832,15 +846,23 @@ struct IntervalTruth<'t, 's> {
     views: &'t [View],
     every_view: bool,
     geos: HashMap<(usize, usize), Vec<Geo>>,
+    /// Views the scene's other stages classified; this one's are added.
+    known: &'t RefCell<GeoCache>,
 }
 
 impl<'t, 's> IntervalTruth<'t, 's> {
-    fn new(truth: &'t Truth<'s>, views: &'t [View], every_view: bool) -> Self {
+    fn new(
+        truth: &'t Truth<'s>,
+        views: &'t [View],
+        every_view: bool,
+        known: &'t RefCell<GeoCache>,
+    ) -> Self {
         IntervalTruth {
             truth,
             views,
             every_view,
             geos: HashMap::new(),
+            known,
         }
     }
 
@@ -862,18 +884,46 @@ impl<'t, 's> IntervalTruth<'t, 's> {
             .copied()
             .collect();
         let (truth, views, every) = (self.truth, self.views, self.every_view);
+        // Each interval's views, with what is known of them already (read
+        // here: the workers below do not share the cache).
+        type Views = Vec<(usize, Option<Geo>)>;
+        let todo: Vec<((usize, usize), Views)> = {
+            let known = self.known.borrow();
+            missing
+                .iter()
+                .map(|&(i, j)| {
+                    let vs = (i + 1..j)
+                        .filter(|&k| every || geo_view_picked(i, j, k))
+                        .map(|k| (k, known.get(&(i, j, k)).copied()))
+                        .collect();
+                    ((i, j), vs)
+                })
+                .collect()
+        };
         let computed = std::sync::Mutex::new(Vec::new());
-        let fails = missing.par_iter().any(|&(i, j)| {
-            let geos: Vec<Geo> = (i + 1..j)
-                .filter(|&k| every || geo_view_picked(i, j, k))
-                .map(|k| Geo::of(&truth.classify(&views[k], &views[i], &views[j], false)))
+        let fails = todo.par_iter().any(|((i, j), vs)| {
+            let (i, j) = (*i, *j);
+            let geos: Vec<Geo> = vs
+                .iter()
+                .map(|&(k, g)| {
+                    g.unwrap_or_else(|| {
+                        Geo::of(&truth.classify(&views[k], &views[i], &views[j], false))
+                    })
+                })
                 .collect();
             let fail = t.is_some_and(|t| !Self::within(&geos, t));
             computed.lock().expect("not poisoned").push(((i, j), geos));
             fail
         });
-        self.geos
-            .extend(computed.into_inner().expect("not poisoned"));
+        let computed = computed.into_inner().expect("not poisoned");
+        let mut known = self.known.borrow_mut();
+        for ((i, j), geos) in &computed {
+            let ks = (i + 1..*j).filter(|&k| every || geo_view_picked(*i, *j, k));
+            for (k, g) in ks.zip(geos) {
+                known.insert((*i, *j, k), *g);
+            }
+        }
+        self.geos.extend(computed);
         !fails
     }
 
@@ -1024,6 +1074,8 @@ pub fn evaluate_scene(
         .ceil()
         .max(1.0) as usize;
     let mut segments = Vec::new();
+    // The geometry of every view a stage classified, for the later stages.
+    let mut known = GeoCache::new();
     for &(a, b) in &segs {
         // Visibility intervals of the surface points of a few views.
         let vpp_views: Vec<usize> = (0..res.vpp_views)
@@ -1085,10 +1137,7 @@ pub fn evaluate_scene(
         // Kept per view and interval: the bisection and the target's check
         // ask again for spacings the ladder swept, and the ladder's scores
         // classify views it also needs (each was classified twice or more).
-        let mut known: HashMap<(usize, usize, usize), Geo> = HashMap::new();
-        let geo_of = |tasks: &[(usize, usize, usize)],
-                      known: &mut HashMap<(usize, usize, usize), Geo>|
-         -> Vec<Geo> {
+        let geo_of = |tasks: &[(usize, usize, usize)], known: &mut GeoCache| -> Vec<Geo> {
             let picked: Vec<(usize, usize, usize)> = tasks
                 .iter()
                 .copied()
@@ -1124,15 +1173,7 @@ pub fn evaluate_scene(
             let picked: Vec<(usize, usize, usize)> = (0..q)
                 .map(|t| tasks[(t * (tasks.len() - 1)) / (q - 1).max(1)])
                 .collect();
-            pb.inc_length(picked.len() as u64);
-            let scores: Vec<Score> = picked
-                .par_iter()
-                .map(|&t| {
-                    let sc = score_view(&truth, &views, &ranges, t, true);
-                    pb.inc(1);
-                    sc
-                })
-                .collect();
+            let scores = scorer.scores(&picked, true);
             known.extend(picked.iter().zip(&scores).map(|(&t, s)| (t, s.geo)));
             let geos = geo_of(&tasks, &mut known);
             let m = [
@@ -1417,10 +1458,6 @@ pub fn evaluate_scene(
         ]);
     }
     stage(1);
-    // Data volume at a guarantee: each method's spacing scaled (one constant)
-    // until its plan keeps every interval within the target spacing of the
-    // segments it overlaps, then that plan judged by the truth.
-    pb.set_message(format!("{}: data volume at the targets", scene.name));
     let seg_targets: Vec<Option<f64>> = segments.iter().map(|s| s.truth.target_m).collect();
     let all_intervals: Vec<truth::Runs> = segments
         .iter()
@@ -1436,9 +1473,55 @@ pub fn evaluate_scene(
                 .map(|v| v.clamp(limits.spacing_min_m, limits.spacing_max_m))
         })
         .collect();
+    // The quality model at its own spacing, and the others scaled to its count (issue 13's
+    // equal-capture comparison): same scorer, so intervals already scored are reused.
+    // Before the data volume, whose judges then take these views' geometry.
+    pb.set_message(format!(
+        "{}: the quality model at equal captures",
+        scene.name
+    ));
+    let quality_own = plan::captures(&visibility_spacing, res.view_step_m, s.speed_mps, 1.0);
+    let quality_plans: Vec<(&'static str, f64, Vec<usize>)> =
+        std::iter::once(("quality", 1.0, quality_own.clone()))
+            .chain(EQUAL_TO_QUALITY.iter().map(|&m| {
+                let i = METHODS.iter().position(|&x| x == m).expect("a method");
+                let (scale, caps) = plan::scale_to_count(
+                    &spacing_of(i),
+                    res.view_step_m,
+                    s.speed_mps,
+                    quality_own.len(),
+                );
+                (m.as_str(), scale, caps)
+            }))
+            .collect();
+    let all: Vec<(usize, usize)> = quality_plans
+        .iter()
+        .flat_map(|p| p.2.windows(2).map(|w| (w[0], w[1])).collect::<Vec<_>>())
+        .collect();
+    scorer.ensure(&all, true);
+    let quality_equal: Vec<EqualRun> = quality_plans
+        .into_iter()
+        .map(|(method, scale, caps)| {
+            let caps_m: Vec<f64> = caps.iter().map(|&c| xs[c]).collect();
+            let min_views = min_views(&all_intervals, &caps_m, line, targets.views_per_point_min);
+            let scores = scorer.per_view(&caps, n, true);
+            EqualRun {
+                method,
+                run: summarise(scores, caps, scale, &segs),
+                min_views,
+            }
+        })
+        .collect();
+    stage(3);
+    known.extend(scorer.cache.iter().map(|(&t, s)| (t, s.1.geo)));
+    let known = RefCell::new(known);
+    // Data volume at a guarantee: each method's spacing scaled (one constant)
+    // until its plan keeps every interval within the target spacing of the
+    // segments it overlaps, then that plan judged by the truth.
+    pb.set_message(format!("{}: data volume at the targets", scene.name));
     let guarantee = if seg_targets.iter().all(|t| t.is_some()) {
-        let mut judge = IntervalTruth::new(&truth, &views, false);
-        let mut judge_all = IntervalTruth::new(&truth, &views, true);
+        let mut judge = IntervalTruth::new(&truth, &views, false, &known);
+        let mut judge_all = IntervalTruth::new(&truth, &views, true, &known);
         let methods = (0..4)
             .map(|m| {
                 let (name, sp) = if m < 3 {
@@ -1540,7 +1623,7 @@ pub fn evaluate_scene(
             &cl_targets,
         );
         let open = plan::captures(&visibility_spacing, res.view_step_m, s.speed_mps, 1.0);
-        let mut judge = IntervalTruth::new(&truth, &views, true);
+        let mut judge = IntervalTruth::new(&truth, &views, true, &known);
         [
             ("open loop", open, None),
             ("closed loop", closed.captures.clone(), Some(closed)),
@@ -1575,45 +1658,6 @@ pub fn evaluate_scene(
         .collect()
     };
     stage(2);
-    // The quality model at its own spacing, and the others scaled to its count (issue 13's
-    // equal-capture comparison): same scorer, so intervals already scored are reused.
-    pb.set_message(format!(
-        "{}: the quality model at equal captures",
-        scene.name
-    ));
-    let quality_own = plan::captures(&visibility_spacing, res.view_step_m, s.speed_mps, 1.0);
-    let quality_plans: Vec<(&'static str, f64, Vec<usize>)> =
-        std::iter::once(("quality", 1.0, quality_own.clone()))
-            .chain(EQUAL_TO_QUALITY.iter().map(|&m| {
-                let i = METHODS.iter().position(|&x| x == m).expect("a method");
-                let (scale, caps) = plan::scale_to_count(
-                    &spacing_of(i),
-                    res.view_step_m,
-                    s.speed_mps,
-                    quality_own.len(),
-                );
-                (m.as_str(), scale, caps)
-            }))
-            .collect();
-    let all: Vec<(usize, usize)> = quality_plans
-        .iter()
-        .flat_map(|p| p.2.windows(2).map(|w| (w[0], w[1])).collect::<Vec<_>>())
-        .collect();
-    scorer.ensure(&all, true);
-    let quality_equal: Vec<EqualRun> = quality_plans
-        .into_iter()
-        .map(|(method, scale, caps)| {
-            let caps_m: Vec<f64> = caps.iter().map(|&c| xs[c]).collect();
-            let min_views = min_views(&all_intervals, &caps_m, line, targets.views_per_point_min);
-            let scores = scorer.per_view(&caps, n, true);
-            EqualRun {
-                method,
-                run: summarise(scores, caps, scale, &segs),
-                min_views,
-            }
-        })
-        .collect();
-    stage(3);
     if let Some(dir) = colmap_dir {
         let occluded: Vec<[f64; 3]> = segments
             .iter()
@@ -1838,5 +1882,139 @@ fn write_err(p: &Path, e: std::io::Error) -> EvalError {
     EvalError::Write {
         path: p.display().to_string(),
         message: e.to_string(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Nine views, 0.5 m apart, of a small scene with a block in the middle.
+    fn views() -> (Scene, Geometry, Vec<View>) {
+        let scene = Scene::parse(
+            r#"name = "stages"
+description = "a block, small and coarse"
+[survey]
+altitude_m = 30.0
+speed_mps = 5.0
+pitch_deg = 10.0
+hfov_deg = 69.0
+width = 40
+height = 30
+start_x_m = -2.0
+end_x_m = 2.0
+view_step_m = 0.5
+[ground]
+texture = { colour = [0.4, 0.5, 0.3], contrast = 0.4, cutoff_per_m = 0.5, seed = 1 }
+[[box]]
+min_m = [-3.0, -3.0, 0.0]
+max_m = [3.0, 3.0, 15.0]
+texture = { colour = [0.7, 0.7, 0.7], contrast = 0.3, cutoff_per_m = 0.5, seed = 2 }
+"#,
+            "stages.toml",
+        )
+        .expect("a valid scene");
+        let s = &scene.survey;
+        let g = Geometry::of_survey(&scene, s.width, s.height);
+        let views = (0..s.view_count())
+            .map(|k| {
+                let x_m = s.view_x_m(k);
+                let cam = survey_camera(&scene, x_m, s.width, s.height);
+                let frame = render(&scene, &cam, &RenderOptions { supersample: 1 });
+                View {
+                    x_m,
+                    lum: frame.luminance(),
+                    depth_m: frame.depth_m,
+                }
+            })
+            .collect();
+        (scene, g, views)
+    }
+
+    #[test]
+    fn a_judge_takes_the_geometry_other_stages_found_and_keeps_what_it_classifies() {
+        let (scene, g, views) = views();
+        assert_eq!(views.len(), 9);
+        let truth = Truth::new(&scene, g);
+        let classified = |(i, j, k): (usize, usize, usize)| {
+            Geo::of(&truth.classify(&views[k], &views[i], &views[j], false))
+        };
+        // No view classifies to this: seen in the plan's geometry, it can only
+        // have come from the cache.
+        let marked = Geo {
+            unseen_fraction: 0.5,
+            parallax_px: Some(123.0),
+            out_of_both_fraction: 0.25,
+            class_px: [1, 2, 3],
+        };
+        let known = RefCell::new(GeoCache::from([((0, 4, 2), marked)]));
+        let mut judge = IntervalTruth::new(&truth, &views, true, &known);
+        let geos = judge.plan_geo(&[0, 4, 8]);
+        let others = [(0, 4, 1), (0, 4, 3), (4, 8, 5), (4, 8, 6), (4, 8, 7)];
+        assert_eq!(
+            geos,
+            [
+                classified(others[0]),
+                marked,
+                classified(others[1]),
+                classified(others[2]),
+                classified(others[3]),
+                classified(others[4]),
+            ]
+        );
+        // What it classified is there for the next stage, under its own key.
+        let known = known.into_inner();
+        assert_eq!(known.len(), 6);
+        for t in others {
+            assert_eq!(known.get(&t), Some(&classified(t)), "{t:?}");
+        }
+        assert_ne!(classified(others[0]), classified(others[2]));
+    }
+
+    #[test]
+    fn a_view_scored_for_the_sweeps_is_the_method_runs_score() {
+        let (scene, g, views) = views();
+        let ranges = vec![(Some(1.0 / 30.0), Some(1.0 / 15.0)); views.len()];
+        // Counting, not drawn (a hidden bar has no length).
+        let pb = ProgressBar::with_draw_target(Some(0), indicatif::ProgressDrawTarget::hidden());
+        let truth = Truth::new(&scene, g);
+        let mut scorer = Scorer {
+            truth,
+            views: &views,
+            est: &ranges,
+            cache: HashMap::new(),
+            pb: &pb,
+        };
+        let direct = |t| score_view(&truth, &views, &ranges, t, true);
+        let picked = [(2, 6, 4), (2, 6, 3)];
+        let expected: Vec<Score> = picked.iter().map(|&t| direct(t)).collect();
+        let scores = scorer.scores(&picked, true);
+        assert_eq!(scores.len(), 2);
+        for (s, e) in scores.iter().zip(&expected) {
+            assert_eq!(format!("{s:?}"), format!("{e:?}"));
+        }
+        assert_eq!(scorer.cache.len(), 2);
+        // A plan over the interval scores its other view only, and gives the
+        // sweeps' scores for the two they scored.
+        let per_view = scorer.per_view(&[2, 6], views.len(), true);
+        assert_eq!(scorer.cache.len(), 3);
+        // Three views scored in all (the progress bar counts each).
+        assert_eq!((pb.length(), pb.position()), (Some(3), 3));
+        assert_eq!(
+            format!("{:?}", per_view[4]),
+            format!("{:?}", Some(expected[0]))
+        );
+        assert_eq!(
+            format!("{:?}", per_view[3]),
+            format!("{:?}", Some(expected[1]))
+        );
+        assert_eq!(
+            format!("{:?}", per_view[5]),
+            format!("{:?}", Some(direct((2, 6, 5))))
+        );
+        assert!(per_view[..3]
+            .iter()
+            .chain(&per_view[6..])
+            .all(Option::is_none));
     }
 }
