@@ -900,30 +900,30 @@ impl<'t, 's> IntervalTruth<'t, 's> {
                 })
                 .collect()
         };
-        let computed = std::sync::Mutex::new(Vec::new());
+        // Per interval its views' geometry, and the views classified here.
+        let computed = std::sync::Mutex::new((Vec::new(), Vec::new()));
         let fails = todo.par_iter().any(|((i, j), vs)| {
             let (i, j) = (*i, *j);
+            let mut classified = Vec::new();
             let geos: Vec<Geo> = vs
                 .iter()
                 .map(|&(k, g)| {
                     g.unwrap_or_else(|| {
-                        Geo::of(&truth.classify(&views[k], &views[i], &views[j], false))
+                        let g = Geo::of(&truth.classify(&views[k], &views[i], &views[j], false));
+                        classified.push(((i, j, k), g));
+                        g
                     })
                 })
                 .collect();
             let fail = t.is_some_and(|t| !Self::within(&geos, t));
-            computed.lock().expect("not poisoned").push(((i, j), geos));
+            let mut c = computed.lock().expect("not poisoned");
+            c.0.push(((i, j), geos));
+            c.1.extend(classified);
             fail
         });
-        let computed = computed.into_inner().expect("not poisoned");
-        let mut known = self.known.borrow_mut();
-        for ((i, j), geos) in &computed {
-            let ks = (i + 1..*j).filter(|&k| every || geo_view_picked(*i, *j, k));
-            for (k, g) in ks.zip(geos) {
-                known.insert((*i, *j, k), *g);
-            }
-        }
-        self.geos.extend(computed);
+        let (per_interval, classified) = computed.into_inner().expect("not poisoned");
+        self.known.borrow_mut().extend(classified);
+        self.geos.extend(per_interval);
         !fails
     }
 
