@@ -102,7 +102,8 @@ fn bench(c: &mut Criterion) {
         });
         // A frame of a flight at the defaults (`Estimator::estimate`): the sweep
         // on every pixel of a quarter of the lines (`visibility_interleave`),
-        // the other lines' newest sweeps kept. The same frame again never
+        // the other lines' newest sweeps kept (and the shortest interval of
+        // the last eight frames held). The same frame again never
         // tightens, so it never sweeps every line (`visibility_refresh`): a
         // flight's frames are `examples/drone_load.rs`'s to time.
         let mut est_flight = Estimator::new(params.clone());

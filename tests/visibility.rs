@@ -773,7 +773,9 @@ proptest! {
     /// swept it: after frame A, each frame of B replaces one residue class of
     /// lines, and the term is the sweep of the grid spliced so, to the bit
     /// (every output; the occluded samples come in another order, which no
-    /// output depends on). `stride` frames of B give B's own term.
+    /// output depends on), except that the views bound holds A's shortest
+    /// intervals: every frame here is within the `2 × stride` frames it
+    /// holds. `stride` frames of B give B's own term, A's intervals held.
     #[test]
     fn an_interleaved_sweep_is_the_sweep_of_each_lines_newest_frame(
         (c, other) in random_case().prop_flat_map(|c| {
@@ -793,10 +795,30 @@ proptest! {
         let workers: Option<&dyn SweepWorkers> = (threads > 1).then_some(&pool as _);
         let mut state = Interleave::default();
         let first = visibility_interleaved(&ga, &geom, c.pitch_rad, &p, workers, stride, &mut state);
-        same_term(&first, &visibility(&ga, &geom, c.pitch_rad, &p))?;
+        let va = visibility(&ga, &geom, c.pitch_rad, &p);
+        same_term(&first, &va)?;
         // The stride in force: at most one class per line.
         let s = stride.min(ga.lines.max(1));
         let per = ga.per_line;
+        // A term whose views bound also holds A's shortest intervals (stride 1
+        // holds nothing).
+        let k = va.views_per_point_min as f64;
+        let shorter = |x: Option<f64>, y: Option<f64>| match (x, y) {
+            (Some(x), Some(y)) => Some(x.min(y)),
+            (x, y) => x.or(y),
+        };
+        let held = |mut v: Visibility| {
+            if s == 1 {
+                return v;
+            }
+            let all = shorter(v.interval_min_m, va.interval_min_m);
+            let occ = shorter(v.occluded_interval_min_m, va.occluded_interval_min_m);
+            v.interval_min_m = all;
+            v.occluded_interval_min_m = occ;
+            v.spacing_views_m = all.map(|l| l / k);
+            v.spacing_views_occluded_m = occ.map(|l| l / k);
+            v
+        };
         let mut spliced = ga.clone();
         // Refreshing: the same, but a frame whose lines tightened since their
         // last sweep is B's own sweep; the same frame over and over never is.
@@ -812,13 +834,13 @@ proptest! {
             for a in (0..ga.lines).filter(|a| a % s == j) {
                 spliced.w[a * per..(a + 1) * per].copy_from_slice(gb.line(a));
             }
-            same_term(&v, &visibility(&spliced, &geom, c.pitch_rad, &p))?;
+            same_term(&v, &held(visibility(&spliced, &geom, c.pitch_rad, &p)))?;
             let before = fresh.refreshed_frames();
             let r = visibility_interleaved(&gb, &geom, c.pitch_rad, &p, workers, stride, &mut fresh);
             refreshed |= fresh.refreshed_frames() > before;
             // (One line: stride 1, every frame sweeps it.)
             prop_assert_eq!(fresh.swept_every_line(), s == 1 || fresh.refreshed_frames() > before);
-            same_term(&r, &visibility(if refreshed { &gb } else { &spliced }, &geom, c.pitch_rad, &p))?;
+            same_term(&r, &held(visibility(if refreshed { &gb } else { &spliced }, &geom, c.pitch_rad, &p)))?;
         }
         same_term(&visibility(&spliced, &geom, c.pitch_rad, &p), &visibility(&gb, &geom, c.pitch_rad, &p))?;
         // Stride 1 is the frame's own sweep, and forgets the others.

@@ -234,14 +234,15 @@ pub fn sweep_text(p: &crate::core::EstimatorParams, width: usize, height: usize)
         (_, 1) => "every pixel".to_string(),
         (_, step) => format!("one pixel in {step} both ways"),
     };
+    let held = 2 * interleave;
     let lines = if interleave == 1 {
         "every line on every frame".to_string()
     } else if p.visibility_refresh {
         format!(
-            "one line in {interleave} a frame, the others' newest sweeps kept, every line when a frame's own lines tighten"
+            "one line in {interleave} a frame, the others' newest sweeps kept, the views bound's shortest interval held {held} frames, every line when a frame's own lines tighten"
         )
     } else {
-        format!("one line in {interleave} a frame, the others' newest sweeps kept")
+        format!("one line in {interleave} a frame, the others' newest sweeps kept, the views bound's shortest interval held {held} frames")
     };
     format!("{pixels}, {lines}{JUDGED}")
 }
@@ -989,7 +990,7 @@ mod tests {
         };
         assert_eq!(
             sweep_text(&decimated, 640, 480),
-            format!("one pixel in 2 both ways, one line in 4 a frame, the others' newest sweeps kept, every line when a frame's own lines tighten{judged}")
+            format!("one pixel in 2 both ways, one line in 4 a frame, the others' newest sweeps kept, the views bound's shortest interval held 8 frames, every line when a frame's own lines tighten{judged}")
         );
         let unrefreshed = crate::core::EstimatorParams {
             visibility_refresh: false,
@@ -997,7 +998,7 @@ mod tests {
         };
         assert_eq!(
             sweep_text(&unrefreshed, 640, 480),
-            format!("one pixel in 2 both ways, one line in 4 a frame, the others' newest sweeps kept{judged}")
+            format!("one pixel in 2 both ways, one line in 4 a frame, the others' newest sweeps kept, the views bound's shortest interval held 8 frames{judged}")
         );
         let auto = crate::core::EstimatorParams {
             decimation: crate::core::Decimation::auto(),
@@ -1082,7 +1083,7 @@ mod tests {
             assert_eq!(
                 sweep_text(&config.estimator, width, height),
                 format!(
-                    "{pixels}, one line in 4 a frame, the others' newest sweeps kept, every line when a frame's own lines tighten; judged against every pixel of every frame"
+                    "{pixels}, one line in 4 a frame, the others' newest sweeps kept, the views bound's shortest interval held 8 frames, every line when a frame's own lines tighten; judged against every pixel of every frame"
                 )
             );
             assert_eq!(

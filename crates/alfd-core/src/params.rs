@@ -212,9 +212,10 @@ pub struct EstimatorParams {
     pub visibility_samples_max: usize,
     /// A frame of a flight ([`crate::Estimator::estimate`]) sweeps one in this
     /// many lines across track for the visibility term and keeps the others'
-    /// newest sweeps from the frames before (1: every line every frame;
-    /// `visibility::Interleave`). `visibility_samples_max` then bounds the
-    /// samples one frame sweeps.
+    /// newest sweeps from the frames before; the views bound takes the
+    /// shortest interval any of the last `2 ×` this many frames found (1:
+    /// every line every frame, nothing held; `visibility::Interleave`).
+    /// `visibility_samples_max` then bounds the samples one frame sweeps.
     pub visibility_interleave: usize,
     /// With `visibility_interleave` above 1, a frame whose own lines came out
     /// tighter than on their last sweep sweeps every line

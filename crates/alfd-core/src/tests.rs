@@ -859,7 +859,8 @@ fn no_return_within_the_percentile_tail_leaves_the_range_alone() {
 }
 
 #[test]
-fn a_flights_sweep_spread_over_frames_takes_each_line_from_its_newest_frame() {
+fn a_flights_sweep_spread_over_frames_takes_each_line_from_its_newest_frame_and_holds_the_shortest_interval_two_turns(
+) {
     let intr = Intrinsics::from_hfov_deg(160, 120, 69.0, None).unwrap();
     // Stripes across track (every line alike): a narrow one has the shorter
     // shortest interval.
@@ -894,12 +895,21 @@ fn a_flights_sweep_spread_over_frames_takes_each_line_from_its_newest_frame() {
     est.set_track_axis(TrackAxis::Rows);
     // A frame estimated alone in between leaves the flight's sweep alone.
     assert_eq!(est.estimate_at(&wide, &intr, 0.0, 1).unwrap(), w);
-    // Half the lines of the wide frame, half still the narrow one's: the
-    // narrow stripes' shortest interval stays until their lines are swept again.
+    // Half the lines of the wide frame, half still the narrow one's.
     let second = est.estimate(&wide, &intr, 0.0).unwrap().0;
     assert_eq!(vis(&second).interleave, 2);
     assert_eq!(vis(&second).interval_min_m, Some(n_min));
     assert_eq!(vis(&second).samples, vis(&w).samples);
+    // Every line is the wide frame's now, but the shortest interval the first
+    // frame found holds for 2 × 2 frames: the views spacing stays the narrow
+    // one's, the unseen fraction (the occluded samples) is the wide one's.
+    for held in 2..4 {
+        let e = est.estimate(&wide, &intr, 0.0).unwrap().0;
+        assert_eq!(vis(&e).interval_min_m, Some(n_min), "frame {held}");
+        assert_eq!(e.spacing.views_m, n.spacing.views_m, "frame {held}");
+        assert_eq!(vis(&e).occluded_samples, vis(&w).occluded_samples);
+        assert_eq!(e.spacing.unseen_m, w.spacing.unseen_m);
+    }
     let third = est.estimate(&wide, &intr, 0.0).unwrap().0;
     assert_eq!(vis(&third).interval_min_m, Some(w_min));
     assert_eq!(third.spacing, w.spacing);
