@@ -252,17 +252,28 @@ fn fill(
             if count && grid.lut_valid.is_some() && grid.w.len() >= COUNT_MIN_SAMPLES {
                 let mut hist = std::mem::take(&mut grid.hist);
                 hist.clear();
-                hist.resize(65536, 0);
-                let counts: &mut [u32; 65536] =
-                    hist.as_mut_slice().try_into().expect("65536 entries");
+                hist.resize(2 * 65536, 0);
+                let counts: &mut [u32; 2 * 65536] =
+                    hist.as_mut_slice().try_into().expect("2 × 65536 entries");
                 // One walk: each value is converted, counted and tested once.
+                // Two counts, samples alternating between them: flat ground
+                // is a run of equal values, and one counter would make each
+                // increment wait on the one before (the fill's largest cost).
                 let mut valid = 0usize;
+                let mut other = 0usize;
                 fill_lines(grid, axis, w_img, data, |z: u16| {
-                    counts[z as usize] += 1;
+                    counts[(z as usize | other) & (2 * 65536 - 1)] += 1;
+                    other ^= 65536;
                     let w = table[z as usize];
                     valid += (w >= 0.0) as usize;
                     w
                 });
+                let (first, second) = hist.split_at_mut(65536);
+                first
+                    .iter_mut()
+                    .zip(second.iter())
+                    .for_each(|(a, b)| *a += b);
+                hist.truncate(65536);
                 // No return, saturation and every value past the range's end.
                 let hi = grid.lut_valid.map_or(usize::MAX, |(_, hi)| hi);
                 grid.far = hist[0] as usize
