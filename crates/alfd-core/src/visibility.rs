@@ -1042,9 +1042,10 @@ pub const INTERLEAVE_REFRESH_REL: f64 = 0.05;
 
 impl Interleave {
     /// Also sweeps every line on a frame whose class of lines, against its own
-    /// last sweep `stride` frames before, has a shortest interval (of any
-    /// sample, or of an occluded one, in the views band) shorter by more than
-    /// `rel`, or a share of occluded samples larger by more than `rel`. The
+    /// last sweep (`stride` frames before, or the last frame that swept every
+    /// line if that is later), has a shortest interval (of any sample, or of
+    /// an occluded one, in the views band) shorter by more than `rel`, or a
+    /// share of occluded samples larger by more than `rel`. The
     /// other classes are older still, and where the scene tightens (an
     /// occluder entering the view) their kept sweeps would lengthen the spacing
     /// for up to `stride − 1` frames; where it loosens, kept sweeps only
