@@ -4,7 +4,7 @@
 
 use super::depth::{DepthImage, Intrinsics, HORIZON_EPS};
 use super::inverse::{
-    fill_grid, fill_grid_counted, percentile_ranks, InvGrid, Selector, FAR, INVALID,
+    count4, fill_grid, fill_grid_counted, percentile_ranks, InvGrid, Selector, FAR, INVALID,
 };
 use super::occlusion::{scan, BoundaryParams, BoundaryStats};
 use super::params::{Decimation, EstimatorParams, GainModel, Model, Quality};
@@ -1046,29 +1046,10 @@ impl<'a> InFrameSpans<'a> {
                 }
             }
         }
-        // Four interleaved counts, so a run of equal values (flat ground) does
-        // not wait on one counter (with two, the count was still half of this
+        // Four interleaved counts (with two, the count was still half of this
         // function's time); negative values (sign bit) fall past the end.
         let mut fine = vec![0u32; 4 * FINE_BINS];
-        let (c01, c23) = fine.split_at_mut(2 * FINE_BINS);
-        let (c0, c1) = c01.split_at_mut(FINE_BINS);
-        let (c2, c3) = c23.split_at_mut(FINE_BINS);
-        let mut quads = scratch.chunks_exact(4);
-        for p in &mut quads {
-            for (c, &v) in [&mut *c0, &mut *c1, &mut *c2, &mut *c3].into_iter().zip(p) {
-                if let Some(c) = c.get_mut(fine_bin(v)) {
-                    *c += 1;
-                }
-            }
-        }
-        for &v in quads.remainder() {
-            if let Some(c) = c0.get_mut(fine_bin(v)) {
-                *c += 1;
-            }
-        }
-        for k in 0..FINE_BINS {
-            c0[k] += c1[k] + c2[k] + c3[k];
-        }
+        count4::<FINE_BINS>(&mut fine, scratch, fine_bin);
         fine.truncate(FINE_BINS);
         fine[..FINE_FIRST].fill(0);
         let blocks = fine

@@ -388,22 +388,32 @@ const BINS: usize = 2048;
 
 /// Histogram of `(bits >> shift) & mask` into `hist[..BINS]`.
 fn histogram(hist: &mut [u32], values: &[f32], shift: u32, mask: u32) {
+    count4::<BINS>(hist, values, |w| ((w.to_bits() >> shift) & mask) as usize);
+}
+
+/// Counts `values` by `bin` into `hist[..N]` (zeroed first), leaving out a
+/// value whose bin is `N` or more. `hist` holds four counts of `N` bins, one
+/// per lane of four consecutive values, summed into the first at the end: a
+/// run of equal values (flat ground) does not wait on one counter.
+pub(crate) fn count4<const N: usize>(hist: &mut [u32], values: &[f32], bin: impl Fn(f32) -> usize) {
     hist.iter_mut().for_each(|c| *c = 0);
-    let (h0, rest) = hist.split_at_mut(BINS);
-    let (h1, rest) = rest.split_at_mut(BINS);
-    let (h2, h3) = rest.split_at_mut(BINS);
-    let bin = |w: f32| ((w.to_bits() >> shift) & mask) as usize;
+    let (h0, rest) = hist.split_at_mut(N);
+    let (h1, rest) = rest.split_at_mut(N);
+    let (h2, h3) = rest.split_at_mut(N);
     let mut chunks = values.chunks_exact(4);
     for c in &mut chunks {
-        h0[bin(c[0])] += 1;
-        h1[bin(c[1])] += 1;
-        h2[bin(c[2])] += 1;
-        h3[bin(c[3])] += 1;
+        for (h, &v) in [&mut *h0, &mut *h1, &mut *h2, &mut *h3].into_iter().zip(c) {
+            if let Some(n) = h.get_mut(bin(v)) {
+                *n += 1;
+            }
+        }
     }
-    for &w in chunks.remainder() {
-        h0[bin(w)] += 1;
+    for &v in chunks.remainder() {
+        if let Some(n) = h0.get_mut(bin(v)) {
+            *n += 1;
+        }
     }
-    for i in 0..BINS {
+    for i in 0..N {
         h0[i] += h1[i] + h2[i] + h3[i];
     }
 }
