@@ -165,6 +165,66 @@ fn street_floor_interval_is_gap_times_height_ratio() {
 /// The unseen fraction is 0 up to `g·H/h`; beyond it the floor strip neither
 /// capture sees is `(b − g·H/h)/(H/h − 1)` metres wide, `f·width/H` pixels of
 /// the mid view, whatever the phase while the strip stays on the floor.
+/// `visibility_refresh` on a flight: a frame whose own lines' shortest
+/// interval shortened sweeps every line only where the views spacing that
+/// predicts (every class shortened alike, and what the last frames hold) comes
+/// within the margin, widened by the spread of the last frames' shortest
+/// intervals, of what the frame's other terms allow (`others_m`). Every line of
+/// the street is alike, so the term is the narrow street's whether or not.
+#[test]
+fn a_shorter_interval_sweeps_every_line_only_where_the_views_spacing_can_decide() {
+    let intr = street_intr();
+    let geom = intr.track(TrackAxis::Rows);
+    let p = exact();
+    let wide = grid(&street(BLOCK, GAP, 0.0, H, &intr), 1);
+    let narrow = grid(&street(BLOCK, 0.8 * GAP, 0.0, H, &intr), 1);
+    let (vw, vn) = (
+        visibility(&wide, &geom, 0.0, &p),
+        visibility(&narrow, &geom, 0.0, &p),
+    );
+    let (l_wide, l_narrow) = (vw.interval_min_m.unwrap(), vn.interval_min_m.unwrap());
+    let rel = INTERLEAVE_REFRESH_REL;
+    assert!(l_narrow < l_wide * (1.0 - rel), "{l_narrow} {l_wide}");
+    // Fewer floor samples: the share of occluded ones does not grow.
+    assert!(
+        vn.occluded_samples * vw.samples <= vw.occluded_samples * vn.samples,
+        "{vn:?} {vw:?}"
+    );
+    // Two frames of the wide street (both classes of lines), then the narrow
+    // one's first class.
+    let flight = |others_m: Option<f64>| {
+        let mut state = Interleave::refreshing(rel);
+        for _ in 0..2 {
+            visibility_interleaved(&wide, &geom, 0.0, &p, None, 2, others_m, &mut state);
+            assert_eq!(state.refreshed_frames(), 0);
+        }
+        let v = visibility_interleaved(&narrow, &geom, 0.0, &p, None, 2, others_m, &mut state);
+        assert_eq!(v.interval_min_m, Some(l_narrow));
+        assert_eq!(v.spacing_views_m, vn.spacing_views_m);
+        state.swept_every_line()
+    };
+    let views_m = vn.spacing_views_m.unwrap();
+    // The last frames' shortest intervals differ by `l_wide / l_narrow`.
+    let (margin, spread) = (1.0 + rel, l_wide / l_narrow);
+    assert!(flight(None), "other terms not known: every line");
+    assert!(
+        flight(Some(views_m)),
+        "the views spacing at the others' bound"
+    );
+    assert!(
+        flight(Some(views_m / (margin * spread) * 1.01)),
+        "within the margin and the spread"
+    );
+    assert!(
+        !flight(Some(views_m / (margin * spread) * 0.99)),
+        "beyond them: the turn alone"
+    );
+    assert!(
+        flight(Some(views_m / margin * 0.99)),
+        "the spread widens the margin"
+    );
+}
+
 #[test]
 fn street_unseen_fraction_follows_the_closed_form() {
     let intr = street_intr();
@@ -794,7 +854,7 @@ proptest! {
         let pool = ThreadWorkers::new(threads);
         let workers: Option<&dyn SweepWorkers> = (threads > 1).then_some(&pool as _);
         let mut state = Interleave::default();
-        let first = visibility_interleaved(&ga, &geom, c.pitch_rad, &p, workers, stride, &mut state);
+        let first = visibility_interleaved(&ga, &geom, c.pitch_rad, &p, workers, stride, None, &mut state);
         let va = visibility(&ga, &geom, c.pitch_rad, &p);
         same_term(&first, &va)?;
         // The stride in force: at most one class per line.
@@ -824,19 +884,19 @@ proptest! {
         // last sweep is B's own sweep; the same frame over and over never is.
         let mut fresh = Interleave::refreshing(INTERLEAVE_REFRESH_REL);
         for _ in 0..=s {
-            let v = visibility_interleaved(&ga, &geom, c.pitch_rad, &p, workers, stride, &mut fresh);
+            let v = visibility_interleaved(&ga, &geom, c.pitch_rad, &p, workers, stride, None, &mut fresh);
             same_term(&v, &visibility(&ga, &geom, c.pitch_rad, &p))?;
         }
         prop_assert_eq!(fresh.refreshed_frames(), 0);
         let mut refreshed = false;
         for j in 0..s {
-            let v = visibility_interleaved(&gb, &geom, c.pitch_rad, &p, workers, stride, &mut state);
+            let v = visibility_interleaved(&gb, &geom, c.pitch_rad, &p, workers, stride, None, &mut state);
             for a in (0..ga.lines).filter(|a| a % s == j) {
                 spliced.w[a * per..(a + 1) * per].copy_from_slice(gb.line(a));
             }
             same_term(&v, &held(visibility(&spliced, &geom, c.pitch_rad, &p)))?;
             let before = fresh.refreshed_frames();
-            let r = visibility_interleaved(&gb, &geom, c.pitch_rad, &p, workers, stride, &mut fresh);
+            let r = visibility_interleaved(&gb, &geom, c.pitch_rad, &p, workers, stride, None, &mut fresh);
             refreshed |= fresh.refreshed_frames() > before;
             // (One line: stride 1, every frame sweeps it.)
             prop_assert_eq!(fresh.swept_every_line(), s == 1 || fresh.refreshed_frames() > before);
@@ -844,7 +904,7 @@ proptest! {
         }
         same_term(&visibility(&spliced, &geom, c.pitch_rad, &p), &visibility(&gb, &geom, c.pitch_rad, &p))?;
         // Stride 1 is the frame's own sweep, and forgets the others.
-        let one = visibility_interleaved(&ga, &geom, c.pitch_rad, &p, workers, 1, &mut state);
+        let one = visibility_interleaved(&ga, &geom, c.pitch_rad, &p, workers, 1, None, &mut state);
         prop_assert_eq!(&one, &visibility(&ga, &geom, c.pitch_rad, &p));
     }
 

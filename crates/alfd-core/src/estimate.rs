@@ -675,6 +675,13 @@ impl Estimator {
             let vparams = p.visibility_params();
             let workers = self.sweep_workers.as_deref();
             let v = if stride > 1 {
+                // What the frame's other terms allow: a tightening of the
+                // views spacing far above it need not sweep every line.
+                let s = &est.spacing;
+                let others_m = [s.parallax_m, s.forward_overlap_m, s.coverage_m]
+                    .into_iter()
+                    .flatten()
+                    .reduce(f64::min);
                 visibility_interleaved(
                     vgrid,
                     &geom,
@@ -682,6 +689,7 @@ impl Estimator {
                     &vparams,
                     workers,
                     stride,
+                    others_m,
                     &mut self.interleave,
                 )
             } else {

@@ -220,7 +220,8 @@ pub struct EstimatorParams {
     /// With `visibility_interleave` above 1, a frame whose own lines came out
     /// tighter than on their last sweep sweeps every line
     /// (`visibility::Interleave::refreshing`): where an occluder enters the view
-    /// the kept lines are stale.
+    /// the kept lines are stale. A shorter interval does so only where the
+    /// views spacing could decide the frame's spacing.
     pub visibility_refresh: bool,
 }
 

@@ -828,17 +828,29 @@ impl Swept {
         }
     }
 
-    /// Whether these lines came out tighter than on their sweep `before`
-    /// ([`Interleave::refreshing`]): a shortest interval shorter, or a share
-    /// of occluded samples larger, by more than `rel`.
-    fn tighter_than(&self, before: &Swept, rel: f64) -> bool {
-        let shorter = |now: f64, then: f64| now < then * (1.0 - rel);
+    /// Whether these lines' shortest interval (of any sample, or of an
+    /// occluded one, in the views band) came out shorter than on their sweep
+    /// `before` by more than `rel` ([`Interleave::refreshing`]): `Some` of the
+    /// smaller ratio now / then (0 where there was none before).
+    fn shorter_than(&self, before: &Swept, rel: f64) -> Option<f64> {
+        let ratio = |now: f64, then: f64| {
+            (now < then * (1.0 - rel)).then(|| if then.is_finite() { now / then } else { 0.0 })
+        };
+        match (
+            ratio(self.min_all, before.min_all),
+            ratio(self.min_occ, before.min_occ),
+        ) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        }
+    }
+
+    /// Whether these lines' share of occluded samples came out larger than on
+    /// their sweep `before` by more than `rel`.
+    fn more_occluded_than(&self, before: &Swept, rel: f64) -> bool {
         // Shares compared as cross products: no division by an empty sweep.
-        let more_occluded = self.occluded_samples as f64 * before.samples as f64
-            > before.occluded_samples as f64 * self.samples as f64 * (1.0 + rel);
-        shorter(self.min_all, before.min_all)
-            || shorter(self.min_occ, before.min_occ)
-            || more_occluded
+        self.occluded_samples as f64 * before.samples as f64
+            > before.occluded_samples as f64 * self.samples as f64 * (1.0 + rel)
     }
 }
 
@@ -1050,6 +1062,18 @@ impl Interleave {
     /// occluder entering the view) their kept sweeps would lengthen the spacing
     /// for up to `stride − 1` frames; where it loosens, kept sweeps only
     /// shorten it. A still scene costs what the turn costs.
+    ///
+    /// A shorter interval alone sweeps every line only where it can decide
+    /// the frame's spacing: the views spacing predicted with every other
+    /// class shortened by the same ratio (and the intervals the last frames
+    /// hold) must come within `rel` of what the frame's other terms allow
+    /// (`others_m` of [`visibility_interleaved`]), widened by the spread of
+    /// the shortest intervals the last `2 × stride` frames found (one class
+    /// can be that much shorter than another: a narrow gap's floor, see
+    /// [`Interleave::remember`]). Approaching a tower, the interval shortens
+    /// frame after frame far above the parallax bound, and sweeping every
+    /// line there changed no capture of `alfd sim --sweep flight`
+    /// (docs/error-vs-runtime.md).
     pub fn refreshing(rel: f64) -> Interleave {
         Interleave {
             refresh_rel: Some(if rel.is_finite() { rel.max(0.0) } else { 0.0 }),
@@ -1090,6 +1114,55 @@ impl Interleave {
         self.frames += 1;
     }
 
+    /// [`Interleave::refreshing`]'s test of the class `phase` swept `fresh`
+    /// (before `fresh` replaces it).
+    fn tightened(
+        &self,
+        fresh: &Swept,
+        phase: usize,
+        rel: f64,
+        params: &VisibilityParams,
+        others_m: Option<f64>,
+    ) -> bool {
+        let before = &self.parts[phase];
+        if fresh.more_occluded_than(before, rel) {
+            return true;
+        }
+        let Some(ratio) = fresh.shorter_than(before, rel) else {
+            return false;
+        };
+        let Some(others_m) = others_m.filter(|o| o.is_finite()) else {
+            return true;
+        };
+        // Every other class shortened as this one did, and what the last
+        // frames hold: the views spacing that predicts. Where it stays well
+        // above what the other terms allow, sweeping the other classes now
+        // would not change the frame's spacing; their turn comes within
+        // `stride` frames.
+        let mut shortest = fresh.min_all;
+        for (c, part) in self.parts.iter().enumerate() {
+            if c != phase {
+                shortest = shortest.min(part.min_all * ratio);
+            }
+        }
+        let mut longest = fresh.min_all;
+        for &(all, _) in &self.recent {
+            shortest = shortest.min(all);
+            if all.is_finite() {
+                longest = longest.max(all);
+            }
+        }
+        // How much the classes' shortest intervals have differed: by this much
+        // a class not swept can be shorter than the prediction.
+        let spread = if shortest > 0.0 {
+            (longest / shortest).max(1.0)
+        } else {
+            f64::INFINITY
+        };
+        let k = params.views_per_point_min.max(1) as f64;
+        shortest / k <= others_m * (1.0 + rel) * spread
+    }
+
     /// Frames so far that swept every line because their lines had tightened.
     pub fn refreshed_frames(&self) -> u64 {
         self.refreshed
@@ -1103,7 +1176,10 @@ impl Interleave {
 
 /// [`visibility_on`] of a frame of a flight, sweeping one in `stride` lines and
 /// taking the others from the last frames (`state`; see [`Interleave`]).
-/// `stride` 1 (or 0) is [`visibility_on`] exactly.
+/// `stride` 1 (or 0) is [`visibility_on`] exactly. `others_m`: the largest
+/// spacing the frame's other terms allow (`None`: not known), against which
+/// [`Interleave::refreshing`] judges whether a shorter interval can matter.
+#[allow(clippy::too_many_arguments)]
 pub fn visibility_interleaved(
     grid: &InvGrid,
     geom: &TrackGeometry,
@@ -1111,6 +1187,7 @@ pub fn visibility_interleaved(
     params: &VisibilityParams,
     workers: Option<&dyn SweepWorkers>,
     stride: usize,
+    others_m: Option<f64>,
     state: &mut Interleave,
 ) -> Visibility {
     let stride = stride.max(1).min(grid.lines.max(1));
@@ -1135,7 +1212,7 @@ pub fn visibility_interleaved(
         let fresh = sweep_lines(grid, geom, pitch_rad, params, workers, stride, phase);
         state.full = state
             .refresh_rel
-            .is_some_and(|rel| fresh.tighter_than(&state.parts[phase], rel));
+            .is_some_and(|rel| state.tightened(&fresh, phase, rel, params, others_m));
         state.parts[phase] = fresh;
         if state.full {
             state.refreshed += 1;
