@@ -858,6 +858,50 @@ fn no_return_within_the_percentile_tail_leaves_the_range_alone() {
     assert!(b.spacing.parallax_m.is_some());
 }
 
+/// The estimator hands the refresh the frame's other bounds: the same frames
+/// (a scene, then closer by a tenth: every interval a tenth shorter, the same
+/// share occluded) sweep every line where the views spacing can decide the
+/// spacing (a loose parallax target) and keep the turn where the parallax
+/// bound is far below it.
+#[test]
+fn a_flights_refresh_weighs_the_views_spacing_against_the_frames_other_bounds() {
+    let intr = Intrinsics::from_hfov_deg(160, 120, 69.0, None).unwrap();
+    let far = stripes(160, 120, 40, 20.0, 40.0);
+    let near = stripes(160, 120, 40, 18.0, 36.0);
+    let flight = |parallax_px: f64| {
+        let mut params = EstimatorParams {
+            visibility_interleave: 2,
+            score: None,
+            ..EstimatorParams::default()
+        };
+        params.quality.parallax_px = Some(parallax_px);
+        params.validate().unwrap();
+        let mut est = Estimator::new(params);
+        for _ in 0..2 {
+            est.estimate(&far, &intr, 0.0).unwrap();
+        }
+        let e = est.estimate(&near, &intr, 0.0).unwrap().0;
+        let v = e.visibility.expect("the quality model sweeps");
+        (e, v.interleave)
+    };
+    let others = |e: &Estimate| {
+        let s = &e.spacing;
+        [s.parallax_m, s.forward_overlap_m, s.coverage_m]
+            .into_iter()
+            .flatten()
+            .reduce(f64::min)
+            .unwrap()
+    };
+    let (tight, kept) = flight(2.0);
+    let views = tight.spacing.views_m.unwrap();
+    // Far above the others, and beyond the margin and the spread (1/0.9).
+    assert!(views > others(&tight) * 1.05 / 0.9 * 2.0, "{tight:?}");
+    assert_eq!(kept, 2, "the parallax bound decides: the turn alone");
+    let (loose, refreshed) = flight(1e4);
+    assert!(loose.spacing.views_m.unwrap() < others(&loose), "{loose:?}");
+    assert_eq!(refreshed, 1, "the views spacing decides: every line");
+}
+
 #[test]
 fn a_flights_sweep_spread_over_frames_takes_each_line_from_its_newest_frame_and_holds_the_shortest_interval_two_turns(
 ) {
