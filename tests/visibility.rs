@@ -225,6 +225,32 @@ fn a_shorter_interval_sweeps_every_line_only_where_the_views_spacing_can_decide(
     );
 }
 
+/// `visibility_refresh` compares the class a frame sweeps with that class's
+/// sweep on its own turn, `stride` frames before, not with a sweep of every
+/// line since: a scene that shortens by 3 % a frame (the same street, every
+/// length scaled) sweeps every line on the turn after a refresh too, where its
+/// class is 12.7 % shorter than on its own turn but only 3 % shorter than the
+/// refresh left it.
+#[test]
+fn a_refresh_compares_each_class_with_its_own_turn() {
+    let intr = street_intr();
+    let geom = intr.track(TrackAxis::Rows);
+    let p = exact();
+    let scaled = |f: f64| grid(&street(BLOCK * f, GAP * f, 0.0, H * f, &intr), 1);
+    let (a, b, c) = (scaled(1.0), scaled(0.9), scaled(0.9 * 0.97));
+    let l = |g: &InvGrid| visibility(g, &geom, 0.0, &p).interval_min_m.unwrap();
+    assert!(l(&b) < l(&a) * 0.95 && l(&c) > l(&b) * 0.95 && l(&c) < l(&a) * 0.95);
+    let mut state = Interleave::refreshing(INTERLEAVE_REFRESH_REL);
+    let mut every_line = Vec::new();
+    for g in [&a, &a, &b, &c, &c] {
+        visibility_interleaved(g, &geom, 0.0, &p, None, 2, None, &mut state);
+        every_line.push(state.swept_every_line());
+    }
+    // The first frame; the refresh on `b`; `c`'s second class against `a`;
+    // then `c`'s first class against `b`'s own turn, 3 %: the turn alone.
+    assert_eq!(every_line, [true, false, true, true, false]);
+}
+
 #[test]
 fn street_unseen_fraction_follows_the_closed_form() {
     let intr = street_intr();

@@ -218,7 +218,7 @@ pub struct EstimatorParams {
     /// `visibility_samples_max` then bounds the samples one frame sweeps.
     pub visibility_interleave: usize,
     /// With `visibility_interleave` above 1, a frame whose own lines came out
-    /// tighter than on their last sweep sweeps every line
+    /// tighter than on their own last turn sweeps every line
     /// (`visibility::Interleave::refreshing`): where an occluder enters the view
     /// the kept lines are stale. A shorter interval does so only where the
     /// views spacing could decide the frame's spacing.

@@ -845,6 +845,14 @@ impl Swept {
         }
     }
 
+    /// The counts and minima, without the records.
+    fn summary(&self) -> Swept {
+        Swept {
+            occluded: Vec::new(),
+            ..*self
+        }
+    }
+
     /// Whether these lines' share of occluded samples came out larger than on
     /// their sweep `before` by more than `rel`.
     fn more_occluded_than(&self, before: &Swept, rel: f64) -> bool {
@@ -1021,13 +1029,15 @@ impl Visibility {
 /// [`Interleave::reset`] (the estimator's on a new track axis).
 ///
 /// [`Interleave::refreshing`] also sweeps every line on a frame whose own lines
-/// came out tighter than on their last sweep (see [`Interleave::refreshing`]).
+/// came out tighter than on their own last turn (see [`Interleave::refreshing`]).
 #[derive(Debug, Clone, Default)]
 pub struct Interleave {
     /// `(lines, per_line, stride)` the parts were swept with.
     key: Option<(usize, usize, usize)>,
     /// The newest sweep of each residue class of lines.
     parts: Vec<Swept>,
+    /// Each class's sweep on its own turn, without its records.
+    own: Vec<Swept>,
     /// The shortest intervals `(min_all, min_occ)` each of the last
     /// `2 × stride` frames swept, by frame modulo its length: the views bound
     /// holds them (see [`visibility_interleaved`]).
@@ -1053,15 +1063,19 @@ pub struct Interleave {
 pub const INTERLEAVE_REFRESH_REL: f64 = 0.05;
 
 impl Interleave {
-    /// Also sweeps every line on a frame whose class of lines, against its own
-    /// last sweep (`stride` frames before, or the last frame that swept every
-    /// line if that is later), has a shortest interval (of any sample, or of
-    /// an occluded one, in the views band) shorter by more than `rel`, or a
-    /// share of occluded samples larger by more than `rel`. The
+    /// Also sweeps every line on a frame whose class of lines, against that
+    /// class's sweep on its own last turn (`stride` frames before, whatever
+    /// frame swept every line in between), has a shortest interval (of any
+    /// sample, or of an occluded one, in the views band) shorter by more than
+    /// `rel`, or a share of occluded samples larger by more than `rel`. The
     /// other classes are older still, and where the scene tightens (an
     /// occluder entering the view) their kept sweeps would lengthen the spacing
     /// for up to `stride − 1` frames; where it loosens, kept sweeps only
-    /// shorten it. A still scene costs what the turn costs.
+    /// shorten it. A still scene costs what the turn costs. (Against the last
+    /// sweep instead, which a frame sweeping every line replaces, a scene that
+    /// tightens a little on each of a few frames never crosses `rel`: an
+    /// occluder entering `alfd sim`'s flight at 400 m was seen three frames
+    /// late.)
     ///
     /// A shorter interval alone sweeps every line only where it can decide
     /// the frame's spacing: the views spacing predicted with every other
@@ -1071,8 +1085,8 @@ impl Interleave {
     /// the shortest intervals the last `2 × stride` frames found (one class
     /// can be that much shorter than another: a narrow gap's floor, see
     /// [`Interleave::remember`]). Approaching a tower, the interval shortens
-    /// frame after frame far above the parallax bound, and sweeping every
-    /// line there changed no capture of `alfd sim --sweep flight`
+    /// frame after frame far above the parallax bound; sweeping every line
+    /// there changed no capture of `alfd sim --sweep flight`
     /// (docs/error-vs-runtime.md).
     pub fn refreshing(rel: f64) -> Interleave {
         Interleave {
@@ -1085,6 +1099,7 @@ impl Interleave {
     pub fn reset(&mut self) {
         self.key = None;
         self.parts.clear();
+        self.own.clear();
         self.recent.clear();
         self.frames = 0;
         self.next = 0;
@@ -1124,7 +1139,7 @@ impl Interleave {
         params: &VisibilityParams,
         others_m: Option<f64>,
     ) -> bool {
-        let before = &self.parts[phase];
+        let before = &self.own[phase];
         if fresh.more_occluded_than(before, rel) {
             return true;
         }
@@ -1202,6 +1217,7 @@ pub fn visibility_interleaved(
             .map(|phase| sweep_lines(grid, geom, pitch_rad, params, workers, stride, phase))
             .collect();
         state.key = Some(key);
+        state.own = state.parts.iter().map(Swept::summary).collect();
         state.next = 0;
         state.full = true;
         state.recent = vec![(f64::INFINITY, f64::INFINITY); 2 * stride];
@@ -1213,6 +1229,7 @@ pub fn visibility_interleaved(
         state.full = state
             .refresh_rel
             .is_some_and(|rel| state.tightened(&fresh, phase, rel, params, others_m));
+        state.own[phase] = fresh.summary();
         state.parts[phase] = fresh;
         if state.full {
             state.refreshed += 1;
