@@ -162,9 +162,6 @@ fn street_floor_interval_is_gap_times_height_ratio() {
     }
 }
 
-/// The unseen fraction is 0 up to `g·H/h`; beyond it the floor strip neither
-/// capture sees is `(b − g·H/h)/(H/h − 1)` metres wide, `f·width/H` pixels of
-/// the mid view, whatever the phase while the strip stays on the floor.
 /// `visibility_refresh` on a flight: a frame whose own lines' shortest
 /// interval shortened sweeps every line only where the views spacing that
 /// predicts (every class shortened alike, and what the last frames hold) comes
@@ -251,6 +248,9 @@ fn a_refresh_compares_each_class_with_its_own_turn() {
     assert_eq!(every_line, [true, false, true, true, false]);
 }
 
+/// The unseen fraction is 0 up to `g·H/h`; beyond it the floor strip neither
+/// capture sees is `(b − g·H/h)/(H/h − 1)` metres wide, `f·width/H` pixels of
+/// the mid view, whatever the phase while the strip stays on the floor.
 #[test]
 fn street_unseen_fraction_follows_the_closed_form() {
     let intr = street_intr();
@@ -907,7 +907,7 @@ proptest! {
         };
         let mut spliced = ga.clone();
         // Refreshing: the same, but a frame whose lines tightened since their
-        // last sweep is B's own sweep; the same frame over and over never is.
+        // own last turn is B's own sweep; the same frame over and over never is.
         let mut fresh = Interleave::refreshing(INTERLEAVE_REFRESH_REL);
         for _ in 0..=s {
             let v = visibility_interleaved(&ga, &geom, c.pitch_rad, &p, workers, stride, None, &mut fresh);
