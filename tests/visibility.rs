@@ -11,7 +11,9 @@ use alfd::core::visibility::{
     Interleave, Interval, LineRun, LineScratch, SweepWorkers, TrackRays, Visibility,
     VisibilityParams, INTERLEAVE_REFRESH_REL,
 };
-use alfd::core::{DepthData, DepthImage, Intrinsics, TrackAxis};
+use alfd::core::{
+    DepthData, DepthImage, Estimate, Estimator, EstimatorParams, Intrinsics, TrackAxis,
+};
 use alfd::synth::{Aabb, BoxWorld, CameraPose};
 use alfd::workers::ThreadWorkers;
 use proptest::prelude::*;
@@ -246,6 +248,81 @@ fn a_refresh_compares_each_class_with_its_own_turn() {
     // The first frame; the refresh on `b`; `c`'s second class against `a`;
     // then `c`'s first class against `b`'s own turn, 3 %: the turn alone.
     assert_eq!(every_line, [true, false, true, true, false]);
+}
+
+/// A watching flight (`Interleave::watching`) also sweeps, on every frame, the
+/// `stride` lines either side of the line that holds the shortest interval: a
+/// street narrower on one line only, beside that line and in a class the frame
+/// does not sweep, is in the frame's views bound at once; the same street
+/// farther than `stride` lines away waits for its class's turn, as it does
+/// without watching.
+#[test]
+fn a_watching_flight_sweeps_the_lines_beside_the_shortest_interval_every_frame() {
+    let (w, h) = (640usize, 12usize);
+    let intr = Intrinsics::from_hfov_deg(w, h, 90.0, None).unwrap();
+    let geom = intr.track(TrackAxis::Rows);
+    let p = exact();
+    let gap = |g: f64| {
+        let world = BoxWorld {
+            ground_z_m: Some(0.0),
+            boxes: vec![
+                slab(-g / 2.0 - 1e3, -g / 2.0, BLOCK),
+                slab(g / 2.0, g / 2.0 + 1e3, BLOCK),
+            ],
+        };
+        render(&world, H, 0.0, &intr).1
+    };
+    let (wide, hot, narrow) = (gap(GAP), gap(GAP * 0.9), gap(GAP * 0.8));
+    // Every line the wide street's, line 5 the hot one's, and `dip` (if any)
+    // the narrow one's.
+    let image = |dip: Option<usize>| {
+        let mut d = wide.clone();
+        d[5 * w..6 * w].copy_from_slice(&hot[5 * w..6 * w]);
+        if let Some(a) = dip {
+            d[a * w..(a + 1) * w].copy_from_slice(&narrow[a * w..(a + 1) * w]);
+        }
+        DepthImage::new(w, h, DepthData::Metres(d)).unwrap()
+    };
+    let frame = |dip: Option<usize>| grid(&image(dip), 1);
+    let l = |g: &InvGrid| visibility(g, &geom, 0.0, &p).interval_min_m.unwrap();
+    let (before, near, far) = (frame(None), frame(Some(6)), frame(Some(11)));
+    assert!(
+        l(&near) < l(&before) * 0.95 && l(&far) == l(&near),
+        "the dip is the shortest"
+    );
+    let stride = 4;
+    // The second frame sweeps class 0 (lines 0, 4, 8): neither dip's line.
+    let second = |state: Interleave, g: &InvGrid| {
+        let mut state = state;
+        visibility_interleaved(&before, &geom, 0.0, &p, None, stride, None, &mut state);
+        let v = visibility_interleaved(g, &geom, 0.0, &p, None, stride, None, &mut state);
+        assert!(!state.swept_every_line());
+        v.interval_min_m.unwrap()
+    };
+    // Line 6 is within 4 of line 5.
+    assert_eq!(second(Interleave::default().watching(), &near), l(&near));
+    assert_eq!(second(Interleave::default(), &near), l(&before));
+    // Line 11 is not: its class's turn comes.
+    assert_eq!(second(Interleave::default().watching(), &far), l(&before));
+    // The refresh sees the frame's own class unchanged, and watches too.
+    let refreshing = Interleave::refreshing(INTERLEAVE_REFRESH_REL).watching();
+    assert_eq!(second(refreshing, &near), l(&near));
+    // The estimator's flight (its defaults: one line in 4, refreshing) watches.
+    let params = EstimatorParams {
+        score: None,
+        ..EstimatorParams::default()
+    };
+    assert_eq!(params.visibility_interleave, stride);
+    let shortest = |e: &Estimate| e.visibility.expect("swept").interval_min_m;
+    let every_pixel = Estimator::new(params.clone())
+        .estimate_at(&image(Some(6)), &intr, 0.0, 1)
+        .unwrap();
+    let mut flight = Estimator::new(params);
+    flight.estimate(&image(None), &intr, 0.0).unwrap();
+    let (second, _) = flight.estimate(&image(Some(6)), &intr, 0.0).unwrap();
+    assert_eq!(second.visibility.unwrap().interleave, stride);
+    assert_eq!(shortest(&second), shortest(&every_pixel));
+    assert_eq!(second.spacing.views_m, every_pixel.spacing.views_m);
 }
 
 /// The unseen fraction is 0 up to `g·H/h`; beyond it the floor strip neither

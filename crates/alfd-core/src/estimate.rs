@@ -388,7 +388,7 @@ impl Estimator {
     /// `params` must have passed [`EstimatorParams::validate`].
     pub fn new(params: EstimatorParams) -> Self {
         let interleave = if params.visibility_refresh {
-            Interleave::refreshing(INTERLEAVE_REFRESH_REL)
+            Interleave::refreshing(INTERLEAVE_REFRESH_REL).watching()
         } else {
             Interleave::default()
         };

@@ -221,7 +221,10 @@ pub struct EstimatorParams {
     /// tighter than on their own last turn sweeps every line
     /// (`visibility::Interleave::refreshing`): where an occluder enters the view
     /// the kept lines are stale. A shorter interval does so only where the
-    /// views spacing could decide the frame's spacing.
+    /// views spacing could decide the frame's spacing. Every frame also sweeps
+    /// the lines beside the one holding the shortest interval
+    /// (`visibility::Interleave::watching`): a narrow gap's floor shows there
+    /// at some sub-pixel phases only, for a frame.
     pub visibility_refresh: bool,
 }
 

@@ -795,6 +795,8 @@ struct Swept {
     /// Shortest interval of any sample, of an occluded one, in the views band.
     min_all: f64,
     min_occ: f64,
+    /// The line of `min_all` (`usize::MAX`: none).
+    min_line: usize,
     occluded: Vec<(f32, f32)>,
 }
 
@@ -807,6 +809,7 @@ impl Default for Swept {
             occluded_lines: 0,
             min_all: f64::INFINITY,
             min_occ: f64::INFINITY,
+            min_line: usize::MAX,
             occluded: Vec::new(),
         }
     }
@@ -819,6 +822,9 @@ impl Swept {
         self.samples += other.samples;
         self.occluded_samples += other.occluded_samples;
         self.occluded_lines += other.occluded_lines;
+        if other.min_all < self.min_all {
+            self.min_line = other.min_line;
+        }
         self.min_all = self.min_all.min(other.min_all);
         self.min_occ = self.min_occ.min(other.min_occ);
         if self.occluded.is_empty() {
@@ -894,8 +900,10 @@ impl LineRun {
         let (mut min_all, mut min_occ) = (f.min_all, f.min_occ);
         let records = &mut f.occluded;
         let (stride, phase) = (self.stride, self.phase);
+        let mut min_line = f.min_line;
         for a in self.lines.clone().filter(|a| a % stride == phase) {
             let (mut surface, mut occluded) = (false, false);
+            let min_before = min_all;
             let counts = in_band.contains(&a);
             sweep_line(
                 grid.line(a),
@@ -921,7 +929,11 @@ impl LineRun {
             );
             f.surface_lines += surface as u64;
             f.occluded_lines += occluded as u64;
+            if min_all < min_before {
+                min_line = a;
+            }
         }
+        f.min_line = min_line;
         (f.samples, f.occluded_samples) = (samples, occluded_samples);
         (f.min_all, f.min_occ) = (min_all, min_occ);
     }
@@ -949,8 +961,33 @@ fn sweep_lines(
     stride: usize,
     phase: usize,
 ) -> Swept {
+    sweep_lines_within(
+        grid,
+        geom,
+        pitch_rad,
+        params,
+        workers,
+        0..grid.lines,
+        stride,
+        phase,
+    )
+}
+
+/// [`sweep_lines`] of the lines in `within` alone.
+#[allow(clippy::too_many_arguments)]
+fn sweep_lines_within(
+    grid: &InvGrid,
+    geom: &TrackGeometry,
+    pitch_rad: f64,
+    params: &VisibilityParams,
+    workers: Option<&dyn SweepWorkers>,
+    within: std::ops::Range<usize>,
+    stride: usize,
+    phase: usize,
+) -> Swept {
     let mut found = Swept::default();
-    if grid.per_line == 0 || grid.lines == 0 || !pitch_rad.is_finite() {
+    let within = within.start.min(grid.lines)..within.end.min(grid.lines);
+    if grid.per_line == 0 || within.is_empty() || !pitch_rad.is_finite() {
         return found;
     }
     let rays = TrackRays::new(geom, &grid.along_idx, pitch_rad);
@@ -963,14 +1000,15 @@ fn sweep_lines(
     let in_band = skip..grid.lines - skip;
     let margin = params.occluder_margin_rel;
     let threads = workers.map_or(1, |w| w.threads().max(1));
+    let (lo, len) = (within.start, within.len());
     let mut runs: Vec<LineRun> = if threads == 1 {
-        vec![LineRun::new(0..grid.lines, stride, phase)]
+        vec![LineRun::new(within, stride, phase)]
     } else {
         // A few runs per thread, so that a thread whose lines hold the
         // occluders does not keep the others waiting.
-        let n = (4 * threads).min(grid.lines);
+        let n = (4 * threads).min(len);
         (0..n)
-            .map(|i| LineRun::new(i * grid.lines / n..(i + 1) * grid.lines / n, stride, phase))
+            .map(|i| LineRun::new(lo + i * len / n..lo + (i + 1) * len / n, stride, phase))
             .collect()
     };
     if let Some(w) = workers.filter(|_| runs.len() > 1) {
@@ -1039,9 +1077,9 @@ pub struct Interleave {
     /// Each class's sweep on its own turn, without its records.
     own: Vec<Swept>,
     /// The shortest intervals `(min_all, min_occ)` each of the last
-    /// `2 × stride` frames swept, by frame modulo its length: the views bound
-    /// holds them (see [`visibility_interleaved`]).
-    recent: Vec<(f64, f64)>,
+    /// `2 × stride` frames swept, and the line of `min_all`, by frame modulo
+    /// its length: the views bound holds them (see [`visibility_interleaved`]).
+    recent: Vec<(f64, f64, usize)>,
     /// Frames since the parts were started.
     frames: usize,
     /// The class the next frame sweeps.
@@ -1054,6 +1092,9 @@ pub struct Interleave {
     refresh_rel: Option<f64>,
     /// Frames that swept every line because their own lines had tightened.
     refreshed: u64,
+    /// Whether every frame also sweeps the lines beside the shortest interval
+    /// held ([`Interleave::watching`]).
+    watch: bool,
 }
 
 /// The estimator's margin for [`Interleave::refreshing`]: a class of lines 5 %
@@ -1095,6 +1136,33 @@ impl Interleave {
         }
     }
 
+    /// Also sweeps, on every frame, the `stride` lines either side of the line
+    /// holding the shortest interval the term holds (of every class but the
+    /// frame's own: one or two lines of each). Their shortest intervals join
+    /// the views bound as the frame's own do; their counts and records are not
+    /// kept.
+    pub fn watching(mut self) -> Interleave {
+        self.watch = true;
+        self
+    }
+
+    /// The line of the shortest interval of the newest sweeps and the
+    /// intervals held.
+    fn hot_line(&self) -> Option<usize> {
+        let mut best = (f64::INFINITY, usize::MAX);
+        for p in &self.parts {
+            if p.min_all < best.0 {
+                best = (p.min_all, p.min_line);
+            }
+        }
+        for &(all, _, line) in &self.recent {
+            if all < best.0 {
+                best = (all, line);
+            }
+        }
+        (best.1 != usize::MAX).then_some(best.1)
+    }
+
     /// Forgets every part: the next frame sweeps every line.
     pub fn reset(&mut self) {
         self.key = None;
@@ -1116,14 +1184,17 @@ impl Interleave {
     /// a frame at 100 m and 10 m/s over 640 columns at 69°). Each line's
     /// newest sweep is one phase; the window holds at least two sweeps of
     /// every line (docs/error-vs-runtime.md).
-    fn remember(&mut self, swept: std::ops::Range<usize>) {
+    fn remember(&mut self, swept: std::ops::Range<usize>, local: Option<&Swept>) {
         let n = self.recent.len();
         if n == 0 {
             return;
         }
-        let mut m = (f64::INFINITY, f64::INFINITY);
-        for part in &self.parts[swept] {
-            m = (m.0.min(part.min_all), m.1.min(part.min_occ));
+        let mut m = (f64::INFINITY, f64::INFINITY, usize::MAX);
+        for part in self.parts[swept].iter().chain(local) {
+            if part.min_all < m.0 {
+                m.2 = part.min_line;
+            }
+            m = (m.0.min(part.min_all), m.1.min(part.min_occ), m.2);
         }
         self.recent[self.frames % n] = m;
         self.frames += 1;
@@ -1161,7 +1232,7 @@ impl Interleave {
             }
         }
         let mut longest = fresh.min_all;
-        for &(all, _) in &self.recent {
+        for &(all, _, _) in &self.recent {
             shortest = shortest.min(all);
             if all.is_finite() {
                 longest = longest.max(all);
@@ -1220,9 +1291,9 @@ pub fn visibility_interleaved(
         state.own = state.parts.iter().map(Swept::summary).collect();
         state.next = 0;
         state.full = true;
-        state.recent = vec![(f64::INFINITY, f64::INFINITY); 2 * stride];
+        state.recent = vec![(f64::INFINITY, f64::INFINITY, usize::MAX); 2 * stride];
         state.frames = 0;
-        state.remember(0..stride);
+        state.remember(0..stride, None);
     } else {
         let phase = state.next;
         let fresh = sweep_lines(grid, geom, pitch_rad, params, workers, stride, phase);
@@ -1237,9 +1308,32 @@ pub fn visibility_interleaved(
                 state.parts[other] =
                     sweep_lines(grid, geom, pitch_rad, params, workers, stride, other);
             }
-            state.remember(0..stride);
+            state.remember(0..stride, None);
         } else {
-            state.remember(phase..phase + 1);
+            // The lines beside the shortest interval held, of every other
+            // class: where a narrow gap's floor shows at some sub-pixel
+            // phases only, a one-frame dip is likeliest there.
+            let local = state.watch.then_some(stride).and_then(|r| {
+                let hot = state.hot_line()?;
+                let within = hot.saturating_sub(r)..(hot + r + 1).min(grid.lines);
+                let mut m = Swept::default();
+                for c in (0..stride).filter(|&c| c != phase) {
+                    let mut s = sweep_lines_within(
+                        grid,
+                        geom,
+                        pitch_rad,
+                        params,
+                        None,
+                        within.clone(),
+                        stride,
+                        c,
+                    );
+                    s.occluded.clear();
+                    m.add(&mut s);
+                }
+                Some(m)
+            });
+            state.remember(phase..phase + 1, local.as_ref());
         }
         state.next = (phase + 1) % stride;
     }
@@ -1254,7 +1348,7 @@ pub fn visibility_interleaved(
     }
     // Every frame's sweep also holds for the next `2 × stride − 1` frames: see
     // `Interleave::remember`.
-    for &(all, occ) in &state.recent {
+    for &(all, occ, _) in &state.recent {
         found.min_all = found.min_all.min(all);
         found.min_occ = found.min_occ.min(occ);
     }
