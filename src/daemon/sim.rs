@@ -239,7 +239,7 @@ pub fn sweep_text(p: &crate::core::EstimatorParams, width: usize, height: usize)
         "every line on every frame".to_string()
     } else if p.visibility_refresh {
         format!(
-            "one line in {interleave} a frame, the others' newest sweeps kept, the views bound's shortest interval held {held} frames, every line when a frame's own lines tighten"
+            "one line in {interleave} a frame, the others' newest sweeps kept, the views bound's shortest interval held {held} frames, every line when a frame's own lines tighten and the lines beside the shortest interval on every frame"
         )
     } else {
         format!("one line in {interleave} a frame, the others' newest sweeps kept, the views bound's shortest interval held {held} frames")
@@ -990,7 +990,7 @@ mod tests {
         };
         assert_eq!(
             sweep_text(&decimated, 640, 480),
-            format!("one pixel in 2 both ways, one line in 4 a frame, the others' newest sweeps kept, the views bound's shortest interval held 8 frames, every line when a frame's own lines tighten{judged}")
+            format!("one pixel in 2 both ways, one line in 4 a frame, the others' newest sweeps kept, the views bound's shortest interval held 8 frames, every line when a frame's own lines tighten and the lines beside the shortest interval on every frame{judged}")
         );
         let unrefreshed = crate::core::EstimatorParams {
             visibility_refresh: false,
@@ -1083,7 +1083,7 @@ mod tests {
             assert_eq!(
                 sweep_text(&config.estimator, width, height),
                 format!(
-                    "{pixels}, one line in 4 a frame, the others' newest sweeps kept, the views bound's shortest interval held 8 frames, every line when a frame's own lines tighten; judged against every pixel of every frame"
+                    "{pixels}, one line in 4 a frame, the others' newest sweeps kept, the views bound's shortest interval held 8 frames, every line when a frame's own lines tighten and the lines beside the shortest interval on every frame; judged against every pixel of every frame"
                 )
             );
             assert_eq!(
