@@ -939,6 +939,9 @@ proptest! {
     /// output depends on), except that the views bound holds A's shortest
     /// intervals: every frame here is within the `2 × stride` frames it
     /// holds. `stride` frames of B give B's own term, A's intervals held.
+    /// Watching the lines beside the shortest interval changes the views
+    /// bound alone: to one no longer than the turn's, and no shorter than
+    /// A's or B's own.
     #[test]
     fn an_interleaved_sweep_is_the_sweep_of_each_lines_newest_frame(
         (c, other) in random_case().prop_flat_map(|c| {
@@ -960,6 +963,11 @@ proptest! {
         let first = visibility_interleaved(&ga, &geom, c.pitch_rad, &p, workers, stride, None, &mut state);
         let va = visibility(&ga, &geom, c.pitch_rad, &p);
         same_term(&first, &va)?;
+        // Watching the lines beside the shortest interval changes the views
+        // bound alone, and only to an interval one of the frames has.
+        let mut watched = Interleave::default().watching();
+        same_term(&visibility_interleaved(&ga, &geom, c.pitch_rad, &p, workers, stride, None, &mut watched), &va)?;
+        let vb = visibility(&gb, &geom, c.pitch_rad, &p);
         // The stride in force: at most one class per line.
         let s = stride.min(ga.lines.max(1));
         let per = ga.per_line;
@@ -994,6 +1002,30 @@ proptest! {
         let mut refreshed = false;
         for j in 0..s {
             let v = visibility_interleaved(&gb, &geom, c.pitch_rad, &p, workers, stride, None, &mut state);
+            let mut w = visibility_interleaved(&gb, &geom, c.pitch_rad, &p, workers, stride, None, &mut watched);
+            for (lw, lv, la, lb) in [
+                (w.interval_min_m, v.interval_min_m, va.interval_min_m, vb.interval_min_m),
+                (
+                    w.occluded_interval_min_m,
+                    v.occluded_interval_min_m,
+                    va.occluded_interval_min_m,
+                    vb.occluded_interval_min_m,
+                ),
+            ] {
+                // Shorter than without the watch, or the same; where the
+                // turn alone found none, the watched lines of B may have one.
+                if let Some(lv) = lv {
+                    prop_assert!(lw.is_some_and(|lw| lw <= lv), "watched {:?} against {}", lw, lv);
+                }
+                if let Some(lw) = lw {
+                    let floor = shorter(la, lb).expect("a frame has it");
+                    prop_assert!(lw >= floor, "watched {} below every frame's {}", lw, floor);
+                }
+            }
+            (w.interval_min_m, w.spacing_views_m) = (v.interval_min_m, v.spacing_views_m);
+            (w.occluded_interval_min_m, w.spacing_views_occluded_m) =
+                (v.occluded_interval_min_m, v.spacing_views_occluded_m);
+            same_term(&w, &v)?;
             for a in (0..ga.lines).filter(|a| a % s == j) {
                 spliced.w[a * per..(a + 1) * per].copy_from_slice(gb.line(a));
             }
