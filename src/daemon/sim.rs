@@ -1039,7 +1039,7 @@ mod tests {
     fn the_sim_config_sweeps_every_pixel() {
         let scene_path = Path::new("scenes/district.toml");
         let scene = Scene::load(scene_path).expect("the default scene loads");
-        for (width, height) in [(640, 480), (1280, 720), (4, 3)] {
+        for (width, height) in [(640, 480), (848, 480), (1280, 720), (4, 3)] {
             let a = SimArgs {
                 width,
                 height,
@@ -1075,15 +1075,17 @@ mod tests {
                 )
             );
             // A quarter of the lines a frame: every pixel of them up to
-            // 80,000 samples, more coarsely beyond.
-            let pixels = match (width, height) {
-                (1280, 720) => "one pixel in 2 both ways",
-                _ => "every pixel",
+            // 80,000 samples; beyond, fewer lines (a sixth at 848 × 480), and
+            // more coarsely past one in 8.
+            let (pixels, lines, held) = match (width, height) {
+                (1280, 720) => ("one pixel in 2 both ways", 4, 8),
+                (848, 480) => ("every pixel", 6, 12),
+                _ => ("every pixel", 4, 8),
             };
             assert_eq!(
                 sweep_text(&config.estimator, width, height),
                 format!(
-                    "{pixels}, one line in 4 a frame, the others' newest sweeps kept, the views bound's shortest interval held 8 frames, every line when a frame's own lines tighten and the lines beside the shortest interval on every frame; judged against every pixel of every frame"
+                    "{pixels}, one line in {lines} a frame, the others' newest sweeps kept, the views bound's shortest interval held {held} frames, every line when a frame's own lines tighten and the lines beside the shortest interval on every frame; judged against every pixel of every frame"
                 )
             );
             assert_eq!(

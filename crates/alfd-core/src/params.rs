@@ -245,18 +245,30 @@ impl EstimatorParams {
     /// `step`, as `(stride, step)`: one in `stride` lines (`visibility_interleave`
     /// for a frame of a flight, else every line), every `step`-th pixel both
     /// ways, coarser than the grid where the frame's share of the lines would
-    /// exceed `visibility_samples_max`.
+    /// exceed `visibility_samples_max`. A flight's frame whose share would
+    /// exceed it takes fewer lines first, up to one in
+    /// [`VISIBILITY_INTERLEAVE_MAX`], and keeps every pixel: a coarser grid
+    /// leaves the narrowest gaps' floors out of every frame, a longer turn only
+    /// sees them later (at 848 × 480 and the defaults, one line in 6 at every
+    /// pixel instead of one in 4 at every second: docs/error-vs-runtime.md).
     pub fn visibility_sampling(
         &self,
         samples: usize,
         step: usize,
         in_flight: bool,
     ) -> (usize, usize) {
-        let stride = if in_flight {
+        let mut stride = if in_flight {
             self.visibility_interleave.max(1)
         } else {
             1
         };
+        let max = self.visibility_samples_max.max(1);
+        if stride > 1 && samples.div_ceil(stride) > max {
+            let needed = samples.div_ceil(max);
+            if needed <= VISIBILITY_INTERLEAVE_MAX {
+                stride = stride.max(needed);
+            }
+        }
         let vstep = crate::estimate::visibility_step(
             samples.div_ceil(stride),
             step,
@@ -568,7 +580,51 @@ impl EstimatorParams {
 
 #[cfg(test)]
 mod tests {
-    use super::{Model, Profile};
+    use super::{EstimatorParams, Model, Profile, VISIBILITY_INTERLEAVE_MAX};
+
+    /// A flight's frame over `visibility_samples_max` takes fewer lines before
+    /// a coarser grid, up to one in `VISIBILITY_INTERLEAVE_MAX`; beyond that,
+    /// a single frame, or every line asked for, thins the grid as before.
+    #[test]
+    fn a_flight_over_the_sample_budget_takes_fewer_lines_before_fewer_pixels() {
+        let p = EstimatorParams::default();
+        assert_eq!(
+            (p.visibility_interleave, p.visibility_samples_max),
+            (4, 80_000)
+        );
+        let px = |w: usize, h: usize| w * h;
+        // 76,800 a frame: within the budget.
+        assert_eq!(p.visibility_sampling(px(640, 480), 1, true), (4, 1));
+        // 407,040: a quarter is 101,760; a sixth, 67,840, at every pixel.
+        assert_eq!(p.visibility_sampling(px(848, 480), 1, true), (6, 1));
+        // At decimation 2 a quarter of 848 × 480 is within it.
+        assert_eq!(p.visibility_sampling(px(424, 240), 2, true), (4, 2));
+        // 921,600 needs 12 turns, over the most: a quarter, every second pixel.
+        assert!(921_600usize.div_ceil(80_000) > VISIBILITY_INTERLEAVE_MAX);
+        assert_eq!(p.visibility_sampling(px(1280, 720), 1, true), (4, 2));
+        // A single frame, and a flight asking for every line, thin the grid.
+        assert_eq!(p.visibility_sampling(px(848, 480), 1, false), (1, 3));
+        let every_line = EstimatorParams {
+            visibility_interleave: 1,
+            ..p.clone()
+        };
+        assert_eq!(
+            every_line.visibility_sampling(px(848, 480), 1, true),
+            (1, 3)
+        );
+        // A larger turn asked for is kept; a budget that fits keeps the turn.
+        let eight = EstimatorParams {
+            visibility_interleave: 8,
+            ..p.clone()
+        };
+        assert_eq!(eight.visibility_sampling(px(848, 480), 1, true), (8, 1));
+        let roomy = EstimatorParams {
+            visibility_interleave: 2,
+            visibility_samples_max: 307_200,
+            ..p
+        };
+        assert_eq!(roomy.visibility_sampling(px(848, 480), 1, true), (2, 1));
+    }
 
     /// The lists are the one table of names: every variant is in its list (a new variant
     /// stops the matches compiling until it has an index here), and every name parses
