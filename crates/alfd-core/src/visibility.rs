@@ -1067,7 +1067,9 @@ impl Visibility {
 /// [`Interleave::reset`] (the estimator's on a new track axis).
 ///
 /// [`Interleave::refreshing`] also sweeps every line on a frame whose own lines
-/// came out tighter than on their own last turn (see [`Interleave::refreshing`]).
+/// came out tighter than on their own last turn (see [`Interleave::refreshing`]),
+/// and [`Interleave::watching`] the lines beside the shortest interval on every
+/// frame.
 #[derive(Debug, Clone, Default)]
 pub struct Interleave {
     /// `(lines, per_line, stride)` the parts were swept with.
