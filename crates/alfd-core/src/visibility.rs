@@ -781,6 +781,9 @@ pub struct LineRun {
     stride: usize,
     phase: usize,
     done: bool,
+    /// Whether the occluded samples' intervals are recorded (the watch keeps
+    /// only counts and minima).
+    records: bool,
     scratch: LineScratch,
     found: Swept,
 }
@@ -815,17 +818,29 @@ impl Default for Swept {
     }
 }
 
+/// The shorter of two shortest intervals, each with its line (the first on a
+/// tie): how the line of the shortest interval is kept wherever minima meet.
+fn shorter(a: (f64, usize), b: (f64, usize)) -> (f64, usize) {
+    if b.0 < a.0 {
+        b
+    } else {
+        a
+    }
+}
+
 impl Swept {
+    /// The shortest interval of any sample in the views band, and its line.
+    fn shortest(&self) -> (f64, usize) {
+        (self.min_all, self.min_line)
+    }
+
     /// Adds `other`'s lines (disjoint from this one's).
     fn add(&mut self, other: &mut Swept) {
         self.surface_lines += other.surface_lines;
         self.samples += other.samples;
         self.occluded_samples += other.occluded_samples;
         self.occluded_lines += other.occluded_lines;
-        if other.min_all < self.min_all {
-            self.min_line = other.min_line;
-        }
-        self.min_all = self.min_all.min(other.min_all);
+        (self.min_all, self.min_line) = shorter(self.shortest(), other.shortest());
         self.min_occ = self.min_occ.min(other.min_occ);
         if self.occluded.is_empty() {
             self.occluded = std::mem::take(&mut other.occluded);
@@ -869,12 +884,13 @@ impl Swept {
 }
 
 impl LineRun {
-    fn new(lines: std::ops::Range<usize>, stride: usize, phase: usize) -> LineRun {
+    fn new(lines: std::ops::Range<usize>, stride: usize, phase: usize, records: bool) -> LineRun {
         LineRun {
             lines,
             stride: stride.max(1),
             phase,
             done: false,
+            records,
             scratch: LineScratch::default(),
             found: Swept::default(),
         }
@@ -899,6 +915,7 @@ impl LineRun {
         let (mut samples, mut occluded_samples) = (f.samples, f.occluded_samples);
         let (mut min_all, mut min_occ) = (f.min_all, f.min_occ);
         let records = &mut f.occluded;
+        let keep = self.records;
         let (stride, phase) = (self.stride, self.phase);
         let mut min_line = f.min_line;
         for a in self.lines.clone().filter(|a| a % stride == phase) {
@@ -923,7 +940,9 @@ impl LineRun {
                         if counts {
                             min_occ = min_occ.min(l);
                         }
-                        records.push((iv.from_m as f32, iv.to_m as f32));
+                        if keep {
+                            records.push((iv.from_m as f32, iv.to_m as f32));
+                        }
                     }
                 },
             );
@@ -947,82 +966,102 @@ pub fn visibility_on(
     params: &VisibilityParams,
     workers: Option<&dyn SweepWorkers>,
 ) -> Visibility {
-    let mut found = sweep_lines(grid, geom, pitch_rad, params, workers, 1, 0);
+    let mut found = FrameSweep::new(grid, geom, pitch_rad, params, workers).lines(1, 0);
     Visibility::from_swept(params, &mut found, None)
 }
 
-/// The lines `a ≡ phase (mod stride)` of `grid`, swept.
-fn sweep_lines(
-    grid: &InvGrid,
-    geom: &TrackGeometry,
-    pitch_rad: f64,
-    params: &VisibilityParams,
-    workers: Option<&dyn SweepWorkers>,
-    stride: usize,
-    phase: usize,
-) -> Swept {
-    sweep_lines_within(
-        grid,
-        geom,
-        pitch_rad,
-        params,
-        workers,
-        0..grid.lines,
-        stride,
-        phase,
-    )
+/// One frame's sweep: its grid, the rays of its samples along track (built
+/// once a frame, whichever sets of lines the frame sweeps), and the lines that
+/// set the views bound.
+struct FrameSweep<'a> {
+    grid: &'a InvGrid,
+    /// `None`: nothing to sweep (no samples on a line, or no pitch).
+    rays: Option<TrackRays>,
+    in_band: std::ops::Range<usize>,
+    margin_rel: f64,
+    workers: Option<&'a dyn SweepWorkers>,
 }
 
-/// [`sweep_lines`] of the lines in `within` alone.
-#[allow(clippy::too_many_arguments)]
-fn sweep_lines_within(
-    grid: &InvGrid,
-    geom: &TrackGeometry,
-    pitch_rad: f64,
-    params: &VisibilityParams,
-    workers: Option<&dyn SweepWorkers>,
-    within: std::ops::Range<usize>,
-    stride: usize,
-    phase: usize,
-) -> Swept {
-    let mut found = Swept::default();
-    let within = within.start.min(grid.lines)..within.end.min(grid.lines);
-    if grid.per_line == 0 || within.is_empty() || !pitch_rad.is_finite() {
-        return found;
+impl<'a> FrameSweep<'a> {
+    fn new(
+        grid: &'a InvGrid,
+        geom: &TrackGeometry,
+        pitch_rad: f64,
+        params: &VisibilityParams,
+        workers: Option<&'a dyn SweepWorkers>,
+    ) -> FrameSweep<'a> {
+        let rays = (grid.per_line > 0 && pitch_rad.is_finite())
+            .then(|| TrackRays::new(geom, &grid.along_idx, pitch_rad));
+        let band = if params.views_band.is_finite() {
+            params.views_band.clamp(0.0, 1.0)
+        } else {
+            1.0
+        };
+        let skip = ((grid.lines as f64 * (1.0 - band) * 0.5).floor() as usize).min(grid.lines / 2);
+        FrameSweep {
+            grid,
+            rays,
+            in_band: skip..grid.lines - skip,
+            margin_rel: params.occluder_margin_rel,
+            workers,
+        }
     }
-    let rays = TrackRays::new(geom, &grid.along_idx, pitch_rad);
-    let band = if params.views_band.is_finite() {
-        params.views_band.clamp(0.0, 1.0)
-    } else {
-        1.0
-    };
-    let skip = ((grid.lines as f64 * (1.0 - band) * 0.5).floor() as usize).min(grid.lines / 2);
-    let in_band = skip..grid.lines - skip;
-    let margin = params.occluder_margin_rel;
-    let threads = workers.map_or(1, |w| w.threads().max(1));
-    let (lo, len) = (within.start, within.len());
-    let mut runs: Vec<LineRun> = if threads == 1 {
-        vec![LineRun::new(within, stride, phase)]
-    } else {
-        // A few runs per thread, so that a thread whose lines hold the
-        // occluders does not keep the others waiting.
-        let n = (4 * threads).min(len);
-        (0..n)
-            .map(|i| LineRun::new(lo + i * len / n..lo + (i + 1) * len / n, stride, phase))
-            .collect()
-    };
-    if let Some(w) = workers.filter(|_| runs.len() > 1) {
-        w.each(&mut runs, &|r| r.sweep(grid, &rays, margin, &in_band));
+
+    /// The lines `a ≡ phase (mod stride)`, swept by the frame's workers.
+    fn lines(&self, stride: usize, phase: usize) -> Swept {
+        self.run(0..self.grid.lines, stride, phase, self.workers, true)
     }
-    // Here what no worker took (none lent, or one that could not start).
-    for r in &mut runs {
-        r.sweep(grid, &rays, margin, &in_band);
+
+    /// The lines `a ≡ phase (mod stride)` in `within` alone, on the calling
+    /// thread (a few lines: not worth a thread), their counts and minima
+    /// without the occluded samples' records ([`Interleave::watching`]).
+    fn beside(&self, within: std::ops::Range<usize>, stride: usize, phase: usize) -> Swept {
+        self.run(within, stride, phase, None, false)
     }
-    // In line order: the occluded samples in the order one thread gives them.
-    for r in &mut runs {
-        found.add(&mut r.found);
+
+    fn run(
+        &self,
+        within: std::ops::Range<usize>,
+        stride: usize,
+        phase: usize,
+        workers: Option<&dyn SweepWorkers>,
+        records: bool,
+    ) -> Swept {
+        let mut found = Swept::default();
+        let grid = self.grid;
+        let within = within.start.min(grid.lines)..within.end.min(grid.lines);
+        let Some(rays) = self.rays.as_ref().filter(|_| !within.is_empty()) else {
+            return found;
+        };
+        let (margin, in_band) = (self.margin_rel, &self.in_band);
+        let threads = workers.map_or(1, |w| w.threads().max(1));
+        let (lo, len) = (within.start, within.len());
+        let mut runs: Vec<LineRun> = if threads == 1 {
+            vec![LineRun::new(within, stride, phase, records)]
+        } else {
+            // A few runs per thread, so that a thread whose lines hold the
+            // occluders does not keep the others waiting.
+            let n = (4 * threads).min(len);
+            (0..n)
+                .map(|i| {
+                    let lines = lo + i * len / n..lo + (i + 1) * len / n;
+                    LineRun::new(lines, stride, phase, records)
+                })
+                .collect()
+        };
+        if let Some(w) = workers.filter(|_| runs.len() > 1) {
+            w.each(&mut runs, &|r| r.sweep(grid, rays, margin, in_band));
+        }
+        // Here what no worker took (none lent, or one that could not start).
+        for r in &mut runs {
+            r.sweep(grid, rays, margin, in_band);
+        }
+        // In line order: the occluded samples in the order one thread gives them.
+        for r in &mut runs {
+            found.add(&mut r.found);
+        }
+        found
     }
-    found
 }
 
 impl Visibility {
@@ -1151,17 +1190,9 @@ impl Interleave {
     /// The line of the shortest interval of the newest sweeps and the
     /// intervals held.
     fn hot_line(&self) -> Option<usize> {
-        let mut best = (f64::INFINITY, usize::MAX);
-        for p in &self.parts {
-            if p.min_all < best.0 {
-                best = (p.min_all, p.min_line);
-            }
-        }
-        for &(all, _, line) in &self.recent {
-            if all < best.0 {
-                best = (all, line);
-            }
-        }
+        let held = self.recent.iter().map(|&(all, _, line)| (all, line));
+        let best = (self.parts.iter().map(Swept::shortest).chain(held))
+            .fold((f64::INFINITY, usize::MAX), shorter);
         (best.1 != usize::MAX).then_some(best.1)
     }
 
@@ -1191,14 +1222,12 @@ impl Interleave {
         if n == 0 {
             return;
         }
-        let mut m = (f64::INFINITY, f64::INFINITY, usize::MAX);
+        let (mut all, mut occ) = ((f64::INFINITY, usize::MAX), f64::INFINITY);
         for part in self.parts[swept].iter().chain(local) {
-            if part.min_all < m.0 {
-                m.2 = part.min_line;
-            }
-            m = (m.0.min(part.min_all), m.1.min(part.min_occ), m.2);
+            all = shorter(all, part.shortest());
+            occ = occ.min(part.min_occ);
         }
-        self.recent[self.frames % n] = m;
+        self.recent[self.frames % n] = (all.0, occ, all.1);
         self.frames += 1;
     }
 
@@ -1284,10 +1313,11 @@ pub fn visibility_interleaved(
         state.full = true;
         return visibility_on(grid, geom, pitch_rad, params, workers);
     }
+    let frame = FrameSweep::new(grid, geom, pitch_rad, params, workers);
     let key = (grid.lines, grid.per_line, stride);
     if state.key != Some(key) {
         state.parts = (0..stride)
-            .map(|phase| sweep_lines(grid, geom, pitch_rad, params, workers, stride, phase))
+            .map(|phase| frame.lines(stride, phase))
             .collect();
         state.key = Some(key);
         state.own = state.parts.iter().map(Swept::summary).collect();
@@ -1298,7 +1328,7 @@ pub fn visibility_interleaved(
         state.remember(0..stride, None);
     } else {
         let phase = state.next;
-        let fresh = sweep_lines(grid, geom, pitch_rad, params, workers, stride, phase);
+        let fresh = frame.lines(stride, phase);
         state.full = state
             .refresh_rel
             .is_some_and(|rel| state.tightened(&fresh, phase, rel, params, others_m));
@@ -1307,8 +1337,7 @@ pub fn visibility_interleaved(
         if state.full {
             state.refreshed += 1;
             for other in (0..stride).filter(|&c| c != phase) {
-                state.parts[other] =
-                    sweep_lines(grid, geom, pitch_rad, params, workers, stride, other);
+                state.parts[other] = frame.lines(stride, other);
             }
             state.remember(0..stride, None);
         } else {
@@ -1320,18 +1349,7 @@ pub fn visibility_interleaved(
                 let within = hot.saturating_sub(r)..(hot + r + 1).min(grid.lines);
                 let mut m = Swept::default();
                 for c in (0..stride).filter(|&c| c != phase) {
-                    let mut s = sweep_lines_within(
-                        grid,
-                        geom,
-                        pitch_rad,
-                        params,
-                        None,
-                        within.clone(),
-                        stride,
-                        c,
-                    );
-                    s.occluded.clear();
-                    m.add(&mut s);
+                    m.add(&mut frame.beside(within.clone(), stride, c));
                 }
                 Some(m)
             });
