@@ -490,3 +490,23 @@ fn simulated_time_flies_the_same_flight_twice() {
         m.records.len()
     );
 }
+
+/// A line longer than the scene's is refused, naming the flag and the scene's
+/// line: it was flown cut to the scene's line without a word. (The other
+/// flights here fly tower's whole 70 m.)
+#[test]
+fn a_line_longer_than_the_scenes_is_refused_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let long = SimArgs {
+        length_m: Some(70.5),
+        ..args(dir.path(), CaptureMode::Frame)
+    };
+    let err = match run_sim_on_simulated_time(long, SimHooks::default(), std::future::pending()) {
+        Ok(_) => panic!("a 70.5 m line over tower's 70 m was flown"),
+        Err(e) => e.to_string(),
+    };
+    assert!(
+        err.contains("--length-m 70.5") && err.contains("tower") && err.contains("70 m"),
+        "{err}"
+    );
+}

@@ -22,11 +22,13 @@ pub struct Args {
     /// Output directory: each run writes a new flight-NNN in it.
     #[arg(long, default_value = "sim-out")]
     out: PathBuf,
-    #[arg(long, default_value_t = 10.0)]
+    // Negative numbers are taken as values, so that the check below names
+    // the flag (not clap's "unexpected argument").
+    #[arg(long, default_value_t = 10.0, allow_negative_numbers = true)]
     speed_mps: f64,
-    #[arg(long, default_value_t = 10.0)]
+    #[arg(long, default_value_t = 10.0, allow_negative_numbers = true)]
     telemetry_hz: f64,
-    #[arg(long, default_value_t = 30.0)]
+    #[arg(long, default_value_t = 30.0, allow_negative_numbers = true)]
     fps: f64,
     #[arg(long, default_value_t = 640)]
     width: usize,
@@ -55,15 +57,16 @@ pub struct Args {
     /// Forward MAVLink to a ground station: udpout:HOST:PORT.
     #[arg(long)]
     gcs: Option<String>,
-    /// Fly only this much of the line (metres); with --lanes, each lane's length.
-    #[arg(long)]
+    /// Fly only this much of the line (metres, at most the scene's line); with
+    /// --lanes, each lane's length.
+    #[arg(long, allow_negative_numbers = true)]
     length_m: Option<f64>,
     /// Fly this many parallel lanes back and forth (a lawnmower: what a
     /// reconstruction wants; one strip leaves lateral position against roll).
     #[arg(long, default_value_t = 1)]
     lanes: u32,
     /// East of the previous lane, metres (with --lanes).
-    #[arg(long, default_value_t = 40.0)]
+    #[arg(long, default_value_t = 40.0, allow_negative_numbers = true)]
     lane_spacing_m: f64,
     /// Whose behaviour firmware-sim copies where the capture depends on it:
     /// its HEARTBEAT and its distance trigger (generic: fires at the point;

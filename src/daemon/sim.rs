@@ -446,6 +446,15 @@ pub async fn run_sim_with(
         Some(p) if args.config.is_some() => Scene::load(p).map_err(|e| setup(e.to_string()))?,
         _ => scene,
     };
+    // A line longer than the scene's would fly off the rendered ground: said,
+    // not cut short without a word.
+    let line_m = scene.survey.end_x_m - scene.survey.start_x_m;
+    if let Some(l) = args.length_m.filter(|&l| l > line_m) {
+        return Err(setup(format!(
+            "--length-m {l}: scene {}'s survey line is {line_m} m; fly at most that",
+            scene.name
+        )));
+    }
     let scene = Arc::new(scene);
 
     // The simulated autopilot: a line north over the scene's survey, or lanes
@@ -466,7 +475,6 @@ pub async fn run_sim_with(
     sc.survey.pattern = firmware_sim::Pattern::Line;
     sc.survey.altitude_m = scene.survey.altitude_m;
     sc.survey.heading_deg = 0.0;
-    let line_m = scene.survey.end_x_m - scene.survey.start_x_m;
     sc.survey.length_m = line_m;
     sc.survey.lanes = 1;
     let lanes = args.lanes.max(1);
