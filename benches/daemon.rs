@@ -200,11 +200,6 @@ keep_camera_jpeg = {keep}
     )
 }
 
-/// User + system CPU of a process, seconds.
-fn cpu_s(pid: u32, tick_hz: f64) -> Option<f64> {
-    cpu_parts_s(pid, tick_hz).map(|(user, system)| user + system)
-}
-
 /// User and system CPU of a process, seconds.
 fn cpu_parts_s(pid: u32, tick_hz: f64) -> Option<(f64, f64)> {
     let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
@@ -383,13 +378,10 @@ fn run_daemon(
     let captures_warm = manifest_lines(&captures);
     let sent_warm = sim.stats().frames_sent;
     let t0 = Instant::now();
-    let mut last = (
-        t0,
-        cpu_s(pid, tick_hz).expect("the daemon's /proc/pid/stat"),
-    );
-    let first_cpu = last.1;
-    let first_system = cpu_parts_s(pid, tick_hz).map_or(f64::NAN, |p| p.1);
-    let mut last_system = first_system;
+    // (when, user + system, system): one read of /proc/pid/stat each.
+    let (user, system) = cpu_parts_s(pid, tick_hz).expect("the daemon's /proc/pid/stat");
+    let mut last = (t0, user + system, system);
+    let first = last;
     for k in 1..=secs {
         let due = t0 + Duration::from_secs(k);
         std::thread::sleep(due.saturating_duration_since(Instant::now()));
@@ -398,18 +390,18 @@ fn run_daemon(
             break;
         };
         let cpu = user + system;
-        last_system = system;
         let now = Instant::now();
         f.cpu_per_second_pct
             .push(100.0 * (cpu - last.1) / (now - last.0).as_secs_f64());
-        last = (now, cpu);
+        last = (now, cpu, system);
         if let Some((rss, hwm)) = memory_mib(pid) {
             f.rss_end_mib = rss;
             f.hwm_mib = hwm;
         }
     }
-    f.cpu_mean_pct = 100.0 * (last.1 - first_cpu) / (last.0 - t0).as_secs_f64().max(1e-9);
-    f.cpu_system_pct = 100.0 * (last_system - first_system) / (last.0 - t0).as_secs_f64().max(1e-9);
+    let window_s = (last.0 - t0).as_secs_f64().max(1e-9);
+    f.cpu_mean_pct = 100.0 * (last.1 - first.1) / window_s;
+    f.cpu_system_pct = 100.0 * (last.2 - first.2) / window_s;
     f.cpu_max_pct = f.cpu_per_second_pct.iter().copied().fold(0.0, f64::max);
     f.captures_in_window = manifest_lines(&captures).saturating_sub(captures_warm);
     f.telemetry_msgs_per_s =
@@ -794,10 +786,12 @@ fn main() {
     } else {
         ms("color_decode_ms") + ms("jpeg_encode_ms")
     };
+    let estimator_pct = 3.0 * ms("estimate_mean_ms");
+    let extra_images_pct = (per_s(occ) - per_s(base)) * image_ms / 10.0;
     let predicted = json!({
         // The colour frames are read and kept raw; only a captured one is decoded.
         "replay_pct": 3.0 * (ms("depth_read_decode_ms") + ms("color_read_ms")),
-        "estimator_pct": 3.0 * ms("estimate_mean_ms"),
+        "estimator_pct": estimator_pct,
         "capture_image_ms": image_ms,
         "capture_images_fixed_pct": per_s(base) * image_ms / 10.0,
         "capture_images_estimating_pct": per_s(occ) * image_ms / 10.0,
@@ -808,9 +802,9 @@ fn main() {
     println!(
         "daemon: the quality model above the fixed one: {:.1} points measured; the stages predict {:.1} (the estimate's mean {:.1}, the extra captures' images {:.1})",
         occ.cpu_mean_pct - base.cpu_mean_pct,
-        3.0 * ms("estimate_mean_ms") + (per_s(occ) - per_s(base)) * image_ms / 10.0,
-        3.0 * ms("estimate_mean_ms"),
-        (per_s(occ) - per_s(base)) * image_ms / 10.0,
+        estimator_pct + extra_images_pct,
+        estimator_pct,
+        extra_images_pct,
     );
 
     let out = json!({
