@@ -485,3 +485,21 @@ fn sim_refuses_what_simulated_time_cannot_do() {
     );
     assert!(!out.exists(), "a refused run wrote {}", out.display());
 }
+
+/// `alfd tradeoff` refuses what it cannot measure, naming the flag, before
+/// it renders or times anything: a frame too large to allocate (it aborted
+/// the process), none timed (`--repeats 0` printed "median of 0 runs" over
+/// times it had taken once), and angles that only a --depth map would have
+/// read (they were never checked without one).
+#[test]
+fn tradeoff_refuses_what_it_cannot_measure_by_name() {
+    rejects(
+        &["tradeoff", "--width", "100000", "--height", "100000"],
+        &["--width 100000", "--height 100000", "4096"],
+    );
+    rejects(&["tradeoff", "--width", "8"], &["--width 8", "16×12"]);
+    rejects(&["tradeoff", "--repeats", "0"], &["--repeats 0"]);
+    rejects(&["tradeoff", "--hfov-deg", "200"], &["--hfov-deg", "170"]);
+    rejects(&["tradeoff", "--hfov-deg", "-5"], &["--hfov-deg", "-5"]);
+    rejects(&["tradeoff", "--pitch-deg", "NaN"], &["--pitch-deg NaN"]);
+}

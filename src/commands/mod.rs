@@ -34,6 +34,19 @@ pub fn bad(msg: impl Into<String>) -> anyhow::Error {
     anyhow::Error::new(BadInput(msg.into()))
 }
 
+/// `--width` and `--height` of a rendered frame (`alfd sim`, `alfd tradeoff`'s
+/// reference scenes): at least 16×12, so that decimation 16 keeps a sample a
+/// row, and at most 4096×4096 (a frame and its estimator's grids stay a few
+/// hundred megabytes; beyond, the allocation would abort the process).
+pub fn frame_size(width: usize, height: usize) -> Result<()> {
+    if !(16..=4096).contains(&width) || !(12..=4096).contains(&height) {
+        return Err(bad(format!(
+            "--width {width} --height {height}: 16×12 to 4096×4096 pixels"
+        )));
+    }
+    Ok(())
+}
+
 /// 2 for bad input, 1 for anything else.
 pub fn exit_code(e: &anyhow::Error) -> u8 {
     if e.downcast_ref::<BadInput>().is_some() {

@@ -1,7 +1,7 @@
 //! `alfd sim`: the daemon on the simulated autopilot over a synthetic scene,
 //! judged against the truth (feature `sim`).
 
-use super::{bad, emit, runtime, termination};
+use super::{bad, emit, frame_size, runtime, termination};
 use alfd::capture::CaptureMode;
 use alfd::config::SimPose;
 use alfd::core::{Model, Profile};
@@ -120,12 +120,7 @@ pub fn run(a: Args) -> Result<ExitCode> {
             )));
         }
     }
-    if !(16..=4096).contains(&a.width) || !(12..=4096).contains(&a.height) {
-        return Err(bad(format!(
-            "--width {} --height {}: 16×12 to 4096×4096 pixels",
-            a.width, a.height
-        )));
-    }
+    frame_size(a.width, a.height)?;
     let args = SimArgs {
         scene: a.scene,
         config: a.config,

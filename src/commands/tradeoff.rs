@@ -1,6 +1,6 @@
 //! `alfd tradeoff`: error against run time of every decimation level and model.
 
-use super::{bad, emit, load_config};
+use super::{bad, emit, frame_size, load_config};
 use alfd::core::{Intrinsics, Model};
 use alfd::depthio::{read_depth, DepthFormat, ReadOptions};
 use alfd::tradeoff;
@@ -26,7 +26,7 @@ pub struct Args {
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     pitch_deg: f64,
     /// Horizontal field of view for --depth maps, degrees.
-    #[arg(long, default_value_t = 69.0)]
+    #[arg(long, default_value_t = 69.0, allow_negative_numbers = true)]
     hfov_deg: f64,
     /// Config file.
     #[arg(long)]
@@ -35,8 +35,19 @@ pub struct Args {
 
 pub fn run(a: Args) -> Result<ExitCode> {
     let cfg = load_config(&a.config)?;
-    if a.width == 0 || a.height == 0 {
-        return Err(bad("--width and --height must be at least 1"));
+    frame_size(a.width, a.height)?;
+    if a.repeats == 0 {
+        return Err(bad("--repeats 0: time each frame at least once"));
+    }
+    // Checked whether or not a --depth map uses them: a bad value is a typo
+    // the user should hear about, not one that waits for the next map.
+    Intrinsics::from_hfov_deg(a.width, a.height, a.hfov_deg, None)
+        .map_err(|e| bad(format!("--hfov-deg: {e}")))?;
+    if !a.pitch_deg.is_finite() {
+        return Err(bad(format!(
+            "--pitch-deg {}: must be a finite angle",
+            a.pitch_deg
+        )));
     }
     let mut frames = tradeoff::reference_frames(a.width, a.height, 69.0);
     for path in &a.depth {
