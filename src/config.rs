@@ -669,8 +669,33 @@ fn resolve(base: &Path, p: &Path) -> PathBuf {
     }
 }
 
+/// An empty path or device name is refused by its field: `""` resolves to the
+/// config file's own directory, and an empty card name is in every card's, so
+/// either would be taken without a word (a template's unfilled value).
+fn given(field: String, value: Option<&std::ffi::OsStr>) -> Result<(), (String, String)> {
+    if value.is_some_and(|v| v.is_empty()) {
+        return Err((
+            field,
+            "is empty: name it, or leave the key out for its default".into(),
+        ));
+    }
+    Ok(())
+}
+
 fn source(section: &str, r: &RawSource, base: &Path) -> Result<SourceConfig, (String, String)> {
     let f = |key: &str| format!("{section}.{key}");
+    given(f("dir"), r.dir.as_deref().map(Path::as_os_str))?;
+    given(
+        f("device_path"),
+        r.device_path.as_deref().map(Path::as_os_str),
+    )?;
+    for (key, v) in [
+        ("device_serial", &r.device_serial),
+        ("device_bus", &r.device_bus),
+        ("device_card", &r.device_card),
+    ] {
+        given(f(key), v.as_deref().map(std::ffi::OsStr::new))?;
+    }
     let kind = match &r.source {
         Some(w) => named(&f("source"), w)?,
         None => SourceKind::None,
@@ -747,6 +772,10 @@ impl RawConfig {
             Some(w) => named("sim.pose", w)?,
             None => SimPose::Truth,
         };
+        given(
+            "sim.scene".into(),
+            self.sim.scene.as_deref().map(Path::as_os_str),
+        )?;
         let sim_scene = self.sim.scene.as_ref().map(|p| resolve(base, p));
         let uses_synthetic =
             camera.kind() == SourceKind::Synthetic || depth.kind() == SourceKind::Synthetic;
@@ -769,6 +798,7 @@ impl RawConfig {
             ));
         }
         let c = &self.capture;
+        given("capture.dir".into(), c.dir.as_deref().map(Path::as_os_str))?;
         let mode = match &c.mode {
             Some(w) => named("capture.mode", w)?,
             None => CaptureMode::Frame,
@@ -1098,6 +1128,40 @@ mod tests {
             let e = Config::from_text(text, "x.toml").unwrap_err().to_string();
             assert!(e.contains(field) && e.contains(names), "{text:?}: {e}");
         }
+    }
+
+    #[test]
+    fn an_empty_path_or_device_name_is_refused_by_its_field() {
+        for (text, field) in [
+            ("[capture]\ndir = \"\"\n", "capture.dir"),
+            (
+                "[camera]\nsource = \"recorded\"\ndir = \"\"\n",
+                "camera.dir",
+            ),
+            (
+                "[depth]\nsource = \"v4l2\"\ndevice_path = \"\"\n",
+                "depth.device_path",
+            ),
+            (
+                "[depth]\nsource = \"v4l2\"\ndevice_serial = \"\"\n",
+                "depth.device_serial",
+            ),
+            (
+                "[camera]\nsource = \"v4l2\"\ndevice_bus = \"\"\n",
+                "camera.device_bus",
+            ),
+            (
+                "[camera]\nsource = \"v4l2\"\ndevice_card = \"\"\n",
+                "camera.device_card",
+            ),
+            ("[sim]\nscene = \"\"\n", "sim.scene"),
+        ] {
+            let e = Config::from_text(text, "x.toml").unwrap_err().to_string();
+            assert!(e.contains(field) && e.contains("empty"), "{text:?}: {e}");
+        }
+        // A name given is taken as before.
+        let c = Config::from_text("[capture]\ndir = \"flights\"\n", "/etc/alfd/x.toml").unwrap();
+        assert_eq!(c.capture.dir, std::path::Path::new("/etc/alfd/flights"));
     }
 
     #[test]
