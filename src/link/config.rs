@@ -273,6 +273,42 @@ fn ms(key: &str, v: u64, min: u64, max: u64) -> Result<Duration, LinkConfigError
     Ok(Duration::from_millis(v))
 }
 
+/// What rust-mavlink's address parser leaves to the connection: a baud rate of
+/// 0 and a port past 65535 parse, and fail (or hang up the line) only when the
+/// daemon connects, in flight. A listener may take port 0 (an ephemeral port,
+/// as the tests' links do); a peer to send to may not.
+fn endpoint(address: &str) -> Result<(), String> {
+    let Some((protocol, rest)) = address.split_once(':') else {
+        return Ok(());
+    };
+    match protocol {
+        "serial" => {
+            let baud = rest.split_once(':').map_or("", |(_, b)| b);
+            if baud.parse::<u32>().is_ok_and(|b| b == 0) {
+                return Err("a baud rate of 0 hangs up the line".into());
+            }
+        }
+        "udpin" | "udpout" | "udpbcast" | "tcpin" | "tcpout" => {
+            let Some((host, port)) = rest.rsplit_once(':') else {
+                return Err("expected HOST:PORT after the protocol".into());
+            };
+            if host.is_empty() {
+                return Err("no host before the port".into());
+            }
+            let listener = matches!(protocol, "udpin" | "tcpin");
+            match port.parse::<u16>() {
+                Ok(0) if !listener => {
+                    return Err(format!("port 0: {protocol} needs the peer's port"))
+                }
+                Ok(_) => {}
+                Err(_) => return Err(format!("port {port}: expected a port from 1 to 65535")),
+            }
+        }
+        _ => {}
+    }
+    Ok(())
+}
+
 impl TryFrom<RawLinkConfig> for LinkConfig {
     type Error = LinkConfigError;
 
@@ -286,6 +322,7 @@ impl TryFrom<RawLinkConfig> for LinkConfig {
                 ),
             )
         })?;
+        endpoint(&r.address).map_err(|why| bad("address", format!("`{}`: {why}", r.address)))?;
         if r.system_id == 0 {
             return Err(bad("system_id", "0 is the broadcast id"));
         }
@@ -437,6 +474,13 @@ mod tests {
                 "mavlink.min_rel_alt_m",
             ),
             ("address = \"udpin:0.0.0.0:14550\"\nadress = 1", "mavlink"),
+            // What rust-mavlink parses and the connection would refuse in flight.
+            ("address = \"serial:/dev/ttyS0:0\"", "mavlink.address"),
+            ("address = \"udpin:0.0.0.0:99999\"", "mavlink.address"),
+            ("address = \"udpout:127.0.0.1:0\"", "mavlink.address"),
+            ("address = \"tcpout:localhost:x\"", "mavlink.address"),
+            ("address = \"tcpout:5760\"", "mavlink.address"),
+            ("address = \"udpin::14550\"", "mavlink.address"),
         ];
         for (body, field) in cases {
             let e = LinkConfig::from_toml(&format!("[mavlink]\n{body}\n")).unwrap_err();
@@ -448,5 +492,14 @@ mod tests {
             (100, 1, vec![1])
         );
         assert_eq!(ok.reconnect_max, Duration::from_millis(500));
+        for address in [
+            "udpin:127.0.0.1:0",
+            "udpout:[::1]:14550",
+            "serial:/dev/ttyAMA0:921600",
+            "tcpin:0.0.0.0:5760",
+        ] {
+            let text = format!("[mavlink]\naddress = {address:?}\n");
+            assert!(LinkConfig::from_toml(&text).is_ok(), "{address}");
+        }
     }
 }
