@@ -82,18 +82,33 @@ fn runtime() -> Result<tokio::runtime::Runtime> {
 }
 
 /// Resolves on SIGTERM or Ctrl-C.
-async fn termination() {
-    let term = async {
-        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
-            Ok(mut s) => {
+/// SIGTERM or Ctrl-C (SIGINT). Inside a runtime the handlers are installed when this is
+/// called, not when the future is first polled: a SIGTERM while the daemon is still
+/// starting (opening devices, the store) is then its shutdown once it runs, where it used
+/// to be the signal's default action, the process killed mid-start. Outside a runtime
+/// (the simulated clock builds its own) they are installed at the first poll.
+fn termination() -> impl std::future::Future<Output = ()> {
+    use tokio::signal::unix::{signal, Signal, SignalKind};
+    let now = tokio::runtime::Handle::try_current().is_ok();
+    let early = |kind| if now { signal(kind).ok() } else { None };
+    let (term, int) = (
+        early(SignalKind::terminate()),
+        early(SignalKind::interrupt()),
+    );
+    async fn next(s: Option<Signal>, kind: SignalKind) {
+        // A handler that cannot be installed leaves that signal's default action.
+        match s.or_else(|| signal(kind).ok()) {
+            Some(mut s) => {
                 s.recv().await;
             }
-            Err(_) => std::future::pending::<()>().await,
+            None => std::future::pending::<()>().await,
         }
-    };
-    tokio::select! {
-        _ = term => {}
-        _ = tokio::signal::ctrl_c() => {}
+    }
+    async move {
+        tokio::select! {
+            _ = next(term, SignalKind::terminate()) => {}
+            _ = next(int, SignalKind::interrupt()) => {}
+        }
     }
 }
 

@@ -27,6 +27,8 @@ pub fn run(a: Args) -> Result<ExitCode> {
     }
     let rt = runtime()?;
     let report = rt.block_on(async {
+        // First: a SIGTERM from here on stops the daemon by its one shutdown path.
+        let stop = termination();
         let slot = LinkSlot::default();
         let devices = devices::open(&config, slot.clone())
             .map_err(|e| bad(format!("{}: {e}", a.config.display())))?;
@@ -43,7 +45,7 @@ pub fn run(a: Args) -> Result<ExitCode> {
             })),
             memory_wire: None,
         };
-        daemon::run::run(config, devices, options, termination())
+        daemon::run::run(config, devices, options, stop)
             .await
             .map_err(anyhow::Error::from)
     })?;

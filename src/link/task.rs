@@ -26,6 +26,23 @@ use tokio::time::{sleep_until, timeout, Instant};
 type Conn = Arc<Wire>;
 
 const OPEN_TIMEOUT: Duration = Duration::from_secs(2);
+
+/// Why the link could not connect, as the operator was last told: a link that does not
+/// come up (a wrong serial device, a port nobody serves) is reported once per reason, not
+/// once per retry, until it connects.
+#[derive(Debug, Default)]
+struct Told(Option<String>);
+
+impl Told {
+    /// Whether `why` is news (and remembers it).
+    fn news(&mut self, why: &str) -> bool {
+        if self.0.as_deref() == Some(why) {
+            return false;
+        }
+        self.0 = Some(why.to_string());
+        true
+    }
+}
 const WRITE_TIMEOUT: Duration = Duration::from_secs(1);
 const PUBLISH_EVERY: Duration = Duration::from_millis(50);
 const UNSYNCED_TIMESYNC_EVERY: Duration = Duration::from_millis(100);
@@ -182,22 +199,27 @@ impl Link {
         self.memory = Some(streams);
     }
 
-    /// The next connection: rust-mavlink's for the address, or the next in-memory stream.
-    async fn connect(&mut self) -> Option<Wire> {
+    /// The next connection: rust-mavlink's for the address, or the next in-memory stream;
+    /// else why not.
+    async fn connect(&mut self) -> Result<Wire, String> {
         let version = if self.cfg.mavlink_version == 1 {
             MavlinkVersion::V1
         } else {
             MavlinkVersion::V2
         };
+        let no_answer = || format!("no connection within {} s", OPEN_TIMEOUT.as_secs());
         if let Some(streams) = self.memory.as_mut() {
-            let s = timeout(OPEN_TIMEOUT, streams.recv()).await.ok()??;
-            return Some(Wire::Memory(MemoryWire::new(s, version)));
+            let s = timeout(OPEN_TIMEOUT, streams.recv())
+                .await
+                .map_err(|_| no_answer())?
+                .ok_or("the simulator's wire is closed")?;
+            return Ok(Wire::Memory(MemoryWire::new(s, version)));
         }
         let address = &self.cfg.address;
         let mut conn = timeout(OPEN_TIMEOUT, mavlink::connect_async::<MavMessage>(address))
             .await
-            .ok()?
-            .ok()?;
+            .map_err(|_| no_answer())?
+            .map_err(|e| e.to_string())?;
         conn.set_allow_recv_any_version(true);
         conn.set_protocol_version(version);
         if let Some(s) = &self.cfg.signing {
@@ -210,7 +232,7 @@ impl Link {
                 s.accept_unsigned,
             )));
         }
-        Some(Wire::Mav(conn))
+        Ok(Wire::Mav(conn))
     }
 
     /// Run until `shutdown` resolves.
@@ -231,6 +253,7 @@ impl Link {
         }
         tokio::pin!(shutdown);
         let mut attempt = 0u32;
+        let mut told = Told::default();
         loop {
             let connected = tokio::select! {
                 biased;
@@ -238,17 +261,32 @@ impl Link {
                 c = self.connect() => c,
             };
             match connected {
-                Some(conn) => {
+                Ok(conn) => {
+                    if attempt > 0 {
+                        tracing::info!(
+                            "MAVLink link on {} connected after {attempt} failed attempts",
+                            self.cfg.address
+                        );
+                    }
                     attempt = 0;
+                    told = Told::default();
                     self.tracker.health.connects += 1;
                     self.tracker.health.connected = true;
                     if self.serve_connection(Arc::new(conn), &mut shutdown).await {
                         return Ok(());
                     }
+                    tracing::warn!("MAVLink link on {} closed; reconnecting", self.cfg.address);
                     self.tracker.health.connected = false;
                     self.publish_health();
                 }
-                None => {
+                Err(why) => {
+                    if told.news(&why) {
+                        tracing::warn!(
+                            "MAVLink link on {}: cannot connect: {why}; retrying every {} ms at most",
+                            self.cfg.address,
+                            self.cfg.reconnect_max.as_millis()
+                        );
+                    }
                     self.tracker.health.connect_failures += 1;
                     let initial = self.cfg.reconnect_initial.as_millis() as u64;
                     let max = self.cfg.reconnect_max.as_millis() as u64;
@@ -518,5 +556,23 @@ struct AbortOnDrop(tokio::task::JoinHandle<()>);
 impl Drop for AbortOnDrop {
     fn drop(&mut self) {
         self.0.abort();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_reason_is_told_once_until_it_changes_or_the_link_connects() {
+        let mut told = Told::default();
+        assert!(told.news("No such file or directory"));
+        assert!(!told.news("No such file or directory"));
+        assert!(told.news("Permission denied"));
+        assert!(!told.news("Permission denied"));
+        assert!(told.news("No such file or directory"));
+        // After a connection the next failure is news again.
+        told = Told::default();
+        assert!(told.news("No such file or directory"));
     }
 }
