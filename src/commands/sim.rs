@@ -166,7 +166,8 @@ pub fn run(a: Args) -> Result<ExitCode> {
     let r = &out.report;
     let mut text = String::new();
     // The CPU beside the wall time: on a shared machine the wall time of the same
-    // flight varies by a third (docs/performance.md), the CPU it took much less.
+    // flight varies by a third (docs/performance.md); CPU over wall time says how
+    // busy the cores were, and so whether the flight or the machine was slow.
     let cpu = process_cpu_s().map_or(String::new(), |c| format!(", {c:.0} s of CPU"));
     text.push_str(&format!(
         "alfd sim: {} in {:.0} s{cpu}\n",
