@@ -17,6 +17,7 @@ use crate::core::distset::{
     Counting, DistanceSetter, DistanceSetterParams, SinceLastPicture, ARDUPILOT_CAMERA_UPDATE_S,
     PX4_TRIGGER_POLL_S,
 };
+use crate::core::estimate::NoEstimate;
 use crate::core::estimate::Terms;
 use crate::core::geo::LocalFrame;
 use crate::core::pose::Pose;
@@ -325,7 +326,8 @@ impl Coordinator {
             self.fallback = fallback;
             let text = match (&e.no_estimate, fallback) {
                 (Some(why), true) => format!(
-                    "alfd: no estimate ({why:?}), fallback spacing {:.1} m",
+                    "alfd: no estimate ({}), fallback spacing {:.1} m",
+                    no_estimate_reason(*why, &e, self.config.estimator.valid_fraction_min),
                     self.config.trigger.fallback_spacing_m
                 ),
                 (_, true) => "alfd: no estimate, fallback spacing".to_string(),
@@ -880,6 +882,24 @@ impl Coordinator {
     }
 }
 
+/// Why a frame gave no estimate, in words an operator can act on: for too few valid
+/// pixels, how many were and how many lay beyond the depth camera's range (a RealSense's
+/// 1 mm Z16 ends at 65.5 m: flown higher, every pixel is beyond it).
+fn no_estimate_reason(why: NoEstimate, e: &Estimate, valid_min: f64) -> String {
+    match why {
+        NoEstimate::TooFewValidPixels if e.samples > 0 => {
+            let share = |n: usize| 100.0 * n as f64 / e.samples as f64;
+            format!(
+                "{:.0} % of the depth valid, {:.0} % needed; {:.0} % beyond the depth camera's range",
+                100.0 * e.valid_fraction,
+                100.0 * valid_min,
+                share(e.far_below_samples)
+            )
+        }
+        other => other.as_str().replace('_', " "),
+    }
+}
+
 fn send(m: MavMessage) -> Action {
     Action::Send(Box::new(m))
 }
@@ -1360,6 +1380,29 @@ mod tests {
         assert!(co
             .on_tick(now(40 * S + S / 2), storage, 0, Some(9.0))
             .is_empty());
+    }
+
+    #[test]
+    fn a_frame_beyond_the_depth_range_says_so_when_it_falls_back() {
+        let mut co = coordinator("frame", 0);
+        // Every sample beyond the range: a RealSense's 1 mm Z16 flown above 65.5 m.
+        let mut e = Estimate::without_depth(0.0);
+        e.no_estimate = Some(NoEstimate::TooFewValidPixels);
+        (e.samples, e.far_below_samples, e.valid_fraction) = (1200, 1200, 0.0);
+        co.on_estimate(
+            EstimatorView::Estimate {
+                mono_ns: S,
+                estimate: Box::new(e),
+            },
+            now(S),
+        );
+        let said = co.report.statustexts.last().cloned().unwrap_or_default();
+        assert!(said.contains("0 % of the depth valid"), "{said}");
+        assert!(
+            said.contains("100 % beyond the depth camera's range"),
+            "{said}"
+        );
+        assert!(said.contains("fallback spacing"), "{said}");
     }
 
     /// The DO_SET_CAM_TRIGG_DISTs among `a`: (distance, param3).
