@@ -483,6 +483,33 @@ fn sim_refuses_what_simulated_time_cannot_do() {
         &["sim", "--gcs", "udpout:127.0.0.1:9", "--out", out_s],
         &["--gcs", "--real-time"],
     );
+    // A scene or config that cannot be read or parsed, or a line longer than the
+    // scene's, is refused before the flight's directory is made (each left an
+    // empty one behind).
+    rejects(
+        &["sim", "--scene", "no/such/scene.toml", "--out", out_s],
+        &["--scene no/such/scene.toml", "No such file"],
+    );
+    rejects(
+        &["sim", "--scene", "Cargo.toml", "--out", out_s],
+        &["Cargo.toml"],
+    );
+    rejects(
+        &["sim", "--config", "no/such/alfd.toml", "--out", out_s],
+        &["no/such/alfd.toml"],
+    );
+    rejects(
+        &[
+            "sim",
+            "--scene",
+            "tests/data/tower.toml",
+            "--length-m",
+            "71",
+            "--out",
+            out_s,
+        ],
+        &["--length-m 71", "70 m"],
+    );
     assert!(!out.exists(), "a refused run wrote {}", out.display());
 }
 

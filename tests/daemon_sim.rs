@@ -510,3 +510,48 @@ fn a_line_longer_than_the_scenes_is_refused_by_name() {
         "{err}"
     );
 }
+
+/// With `--config` naming its own scene, that scene is the one flown and the one
+/// copied next to the captures (`scene.toml`, so that the run can be redone): the copy
+/// was `--scene`'s, or the built-in district, whatever the config flew.
+#[test]
+fn a_configs_own_scene_is_flown_and_copied() {
+    let dir = tempfile::tempdir().unwrap();
+    let tower = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/tower.toml");
+    let config = dir.path().join("alfd.toml");
+    std::fs::write(
+        &config,
+        format!(
+            r#"[mavlink]
+address = "serial:/dev/null:921600"
+[sim]
+pose = "truth"
+scene = {tower:?}
+[depth]
+source = "synthetic"
+width = 160
+height = 120
+scale_m = 0.01
+max_range_m = 300.0
+[camera]
+source = "synthetic"
+width = 160
+height = 120
+[trigger]
+fallback_spacing_m = 1.0
+"#
+        ),
+    )
+    .unwrap();
+    let a = SimArgs {
+        config: Some(config),
+        scene: None,
+        length_m: Some(20.0),
+        ..args(dir.path(), CaptureMode::Frame)
+    };
+    let out = run_sim_on_simulated_time(a, SimHooks::default(), std::future::pending())
+        .expect("the sim runs");
+    let copied = std::fs::read_to_string(out.flight_dir.join("scene.toml")).unwrap();
+    assert_eq!(copied, std::fs::read_to_string(&tower).unwrap());
+    assert!(out.report.records.len() > 5, "{} captures", out.report.records.len());
+}

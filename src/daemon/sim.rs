@@ -408,44 +408,30 @@ pub async fn run_sim_with(
             "--gcs: a ground station watches in real time; add --real-time".into(),
         ));
     }
-    std::fs::create_dir_all(&args.out)
-        .map_err(|e| setup(format!("{}: {e}", args.out.display())))?;
-    let flight_dir = super::run::next_flight_dir(&args.out);
-    std::fs::create_dir_all(&flight_dir)
-        .map_err(|e| setup(format!("{}: {e}", flight_dir.display())))?;
-    // The scene flown is copied next to the captures: the run can be redone.
-    let (scene_text, scene_name) = match &args.scene {
-        Some(p) => (
-            std::fs::read_to_string(p).map_err(|e| setup(format!("{}: {e}", p.display())))?,
+    // The scene and a given config, read and checked before any directory is made:
+    // a bad one leaves no empty flight behind.
+    let given = match &args.config {
+        Some(p) => Some(Config::load(p).map_err(|e| setup(e.to_string()))?),
+        None => None,
+    };
+    // The scene flown: a given config's own, else --scene's, else the built-in one.
+    let (scene_text, scene_name) = match (
+        given.as_ref().and_then(|c| c.sim_scene.as_ref()),
+        &args.scene,
+    ) {
+        (Some(p), _) => (
+            std::fs::read_to_string(p)
+                .map_err(|e| setup(format!("sim.scene {}: {e}", p.display())))?,
             p.display().to_string(),
         ),
-        None => (DEFAULT_SCENE.to_string(), "district (built in)".to_string()),
+        (None, Some(p)) => (
+            std::fs::read_to_string(p)
+                .map_err(|e| setup(format!("--scene {}: {e}", p.display())))?,
+            p.display().to_string(),
+        ),
+        (None, None) => (DEFAULT_SCENE.to_string(), "district (built in)".to_string()),
     };
-    let scene_path = flight_dir.join("scene.toml");
-    std::fs::write(&scene_path, &scene_text)
-        .map_err(|e| setup(format!("{}: {e}", scene_path.display())))?;
     let scene = Scene::parse(&scene_text, &scene_name).map_err(|e| setup(e.to_string()))?;
-
-    let mut config = match &args.config {
-        Some(p) => Config::load(p).map_err(|e| setup(e.to_string()))?,
-        None => {
-            let text = sim_config_text(&args, &scene_path, &flight_dir, &scene);
-            let path = flight_dir.join("alfd.toml");
-            std::fs::write(&path, &text).map_err(|e| setup(format!("{}: {e}", path.display())))?;
-            Config::from_text(&text, &path.display().to_string())
-                .map_err(|e| setup(format!("the built-in sim config: {e}")))?
-        }
-    };
-    if args.config.is_some() {
-        config.capture.dir = flight_dir.clone();
-    }
-    if let Some(f) = hooks.on_config.take() {
-        f(&mut config);
-    }
-    let scene = match &config.sim_scene {
-        Some(p) if args.config.is_some() => Scene::load(p).map_err(|e| setup(e.to_string()))?,
-        _ => scene,
-    };
     // A line longer than the scene's would fly off the rendered ground: said,
     // not cut short without a word.
     let line_m = scene.survey.end_x_m - scene.survey.start_x_m;
@@ -454,6 +440,32 @@ pub async fn run_sim_with(
             "--length-m {l}: scene {}'s survey line is {line_m} m; fly at most that",
             scene.name
         )));
+    }
+    std::fs::create_dir_all(&args.out)
+        .map_err(|e| setup(format!("{}: {e}", args.out.display())))?;
+    let flight_dir = super::run::next_flight_dir(&args.out);
+    std::fs::create_dir_all(&flight_dir)
+        .map_err(|e| setup(format!("{}: {e}", flight_dir.display())))?;
+    // The scene flown is copied next to the captures: the run can be redone.
+    let scene_path = flight_dir.join("scene.toml");
+    std::fs::write(&scene_path, &scene_text)
+        .map_err(|e| setup(format!("{}: {e}", scene_path.display())))?;
+
+    let mut config = match given {
+        Some(mut c) => {
+            c.capture.dir = flight_dir.clone();
+            c
+        }
+        None => {
+            let text = sim_config_text(&args, &scene_path, &flight_dir, &scene);
+            let path = flight_dir.join("alfd.toml");
+            std::fs::write(&path, &text).map_err(|e| setup(format!("{}: {e}", path.display())))?;
+            Config::from_text(&text, &path.display().to_string())
+                .map_err(|e| setup(format!("the built-in sim config: {e}")))?
+        }
+    };
+    if let Some(f) = hooks.on_config.take() {
+        f(&mut config);
     }
     let scene = Arc::new(scene);
 
