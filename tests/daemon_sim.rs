@@ -519,30 +519,12 @@ fn a_configs_own_scene_is_flown_and_copied() {
     let dir = tempfile::tempdir().unwrap();
     let tower = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/tower.toml");
     let config = dir.path().join("alfd.toml");
-    std::fs::write(
-        &config,
-        format!(
-            r#"[mavlink]
-address = "serial:/dev/null:921600"
-[sim]
-pose = "truth"
-scene = {tower:?}
-[depth]
-source = "synthetic"
-width = 160
-height = 120
-scale_m = 0.01
-max_range_m = 300.0
-[camera]
-source = "synthetic"
-width = 160
-height = 120
-[trigger]
-fallback_spacing_m = 1.0
-"#
-        ),
-    )
-    .unwrap();
+    // The bench's config of `alfd run`, posed from the simulator's truth (a flight on
+    // simulated time cannot wait for telemetry); its capture dir is replaced by the sim's.
+    let text = tools::synthetic_tower_config("serial:/dev/null:921600", dir.path(), "frame")
+        .replace("pose = \"telemetry\"", "pose = \"truth\"");
+    assert!(text.contains("pose = \"truth\""));
+    std::fs::write(&config, text).unwrap();
     let a = SimArgs {
         config: Some(config),
         scene: None,
@@ -553,5 +535,9 @@ fallback_spacing_m = 1.0
         .expect("the sim runs");
     let copied = std::fs::read_to_string(out.flight_dir.join("scene.toml")).unwrap();
     assert_eq!(copied, std::fs::read_to_string(&tower).unwrap());
-    assert!(out.report.records.len() > 5, "{} captures", out.report.records.len());
+    assert!(
+        out.report.records.len() > 5,
+        "{} captures",
+        out.report.records.len()
+    );
 }
