@@ -81,8 +81,7 @@ fn runtime() -> Result<tokio::runtime::Runtime> {
         .context("starting the async runtime")
 }
 
-/// Resolves on SIGTERM or Ctrl-C.
-/// SIGTERM or Ctrl-C (SIGINT). Inside a runtime the handlers are installed when this is
+/// Resolves on SIGTERM or Ctrl-C (SIGINT). Inside a runtime the handlers are installed when this is
 /// called, not when the future is first polled: a SIGTERM while the daemon is still
 /// starting (opening devices, the store) is then its shutdown once it runs, where it used
 /// to be the signal's default action, the process killed mid-start. Outside a runtime
