@@ -16,6 +16,11 @@ use std::time::Duration;
 /// exist, its stderr's lines sent to the receiver as they come.
 fn start(dir: &Path) -> (Child, mpsc::Receiver<String>, String) {
     let address = format!("serial:{}:921600", dir.join("no-such-tty").display());
+    start_at(dir, address)
+}
+
+/// [`start`] against `address`.
+fn start_at(dir: &Path, address: String) -> (Child, mpsc::Receiver<String>, String) {
     let config = dir.join("alfd.toml");
     std::fs::write(
         &config,
@@ -111,5 +116,33 @@ fn a_sigterm_while_starting_is_a_clean_stop() {
         rest.iter()
             .any(|l| message(l).1.starts_with("stopped: 0 captures")),
         "no stop report: {rest:#?}"
+    );
+}
+
+/// A peer that accepts and hangs up at once makes the link close and reconnect
+/// every few milliseconds: that is said at most every 10 s with the count, not once
+/// per close (it filled the log at a line every 6 ms).
+#[test]
+fn a_flapping_link_is_not_said_at_every_close() {
+    let tmp = tempfile::tempdir().unwrap();
+    let server = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = server.local_addr().unwrap().port();
+    let (mut child, rx, _) = start_at(tmp.path(), format!("tcpout:127.0.0.1:{port}"));
+    // Twenty connections accepted and dropped: twenty closes, in well under 10 s
+    // (each reconnection waits at most 500 ms).
+    for _ in 0..20 {
+        let (conn, _) = server.accept().unwrap();
+        drop(conn);
+    }
+    let status = sigterm_and_wait(&mut child);
+    let log: Vec<String> = rx.iter().collect();
+    assert!(status.success(), "alfd run after SIGTERM: {status}");
+    let closed = log
+        .iter()
+        .filter(|l| message(l).1.contains("closed"))
+        .count();
+    assert!(
+        (1..=2).contains(&closed),
+        "{closed} close warnings over twenty closes: {log:#?}"
     );
 }

@@ -304,6 +304,13 @@ fn endpoint(address: &str) -> Result<(), String> {
                 Err(_) => return Err(format!("port {port}: expected a port from 1 to 65535")),
             }
         }
+        // rust-mavlink reads a file as a link: the daemon would replay a log from its
+        // start again at every end of file, an autopilot "rebooting" every few ms.
+        "file" => {
+            return Err(
+                "a file is a recorded log, not an autopilot: use serial:, udpin:, udpout:, tcpout: or tcpin:".into(),
+            )
+        }
         _ => {}
     }
     Ok(())
@@ -481,6 +488,7 @@ mod tests {
             ("address = \"tcpout:localhost:x\"", "mavlink.address"),
             ("address = \"tcpout:5760\"", "mavlink.address"),
             ("address = \"udpin::14550\"", "mavlink.address"),
+            ("address = \"file:/var/log/flight.tlog\"", "mavlink.address"),
         ];
         for (body, field) in cases {
             let e = LinkConfig::from_toml(&format!("[mavlink]\n{body}\n")).unwrap_err();

@@ -26,6 +26,8 @@ use tokio::time::{sleep_until, timeout, Instant};
 type Conn = Arc<Wire>;
 
 const OPEN_TIMEOUT: Duration = Duration::from_secs(2);
+/// A lost connection is logged at most this often.
+const CLOSED_SAID_EVERY: Duration = Duration::from_secs(10);
 
 /// Why the link could not connect, as the operator was last told: a link that does not
 /// come up (a wrong serial device, a port nobody serves) is reported once per reason, not
@@ -254,6 +256,7 @@ impl Link {
         tokio::pin!(shutdown);
         let mut attempt = 0u32;
         let mut told = Told::default();
+        let (mut closed_said, mut closes): (Option<Instant>, u64) = (None, 0);
         loop {
             let connected = tokio::select! {
                 biased;
@@ -275,7 +278,17 @@ impl Link {
                     if self.serve_connection(Arc::new(conn), &mut shutdown).await {
                         return Ok(());
                     }
-                    tracing::warn!("MAVLink link on {} closed; reconnecting", self.cfg.address);
+                    // A link that flaps (a peer that accepts and hangs up) is said
+                    // at most every CLOSED_SAID_EVERY, with the closes in between.
+                    closes += 1;
+                    let now = Instant::now();
+                    if closed_said.is_none_or(|t| now >= t + CLOSED_SAID_EVERY) {
+                        tracing::warn!(
+                            "MAVLink link on {} closed ({closes} times since last said); reconnecting",
+                            self.cfg.address
+                        );
+                        (closed_said, closes) = (Some(now), 0);
+                    }
                     self.tracker.health.connected = false;
                     self.publish_health();
                 }
