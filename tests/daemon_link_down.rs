@@ -6,9 +6,8 @@
 
 mod tools;
 
-use std::io::{BufRead, BufReader};
 use std::path::Path;
-use std::process::{Child, Command, ExitStatus, Stdio};
+use std::process::{Child, ExitStatus};
 use std::sync::mpsc;
 use std::time::Duration;
 
@@ -27,23 +26,7 @@ fn start_at(dir: &Path, address: String) -> (Child, mpsc::Receiver<String>, Stri
         tools::synthetic_tower_config(&address, &dir.join("captures"), "frame"),
     )
     .unwrap();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_alfd"))
-        .args(["run", "--log-format", "json", "--config"])
-        .arg(&config)
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("alfd starts");
-    let (tx, rx) = mpsc::channel();
-    let stderr = child.stderr.take().unwrap();
-    std::thread::spawn(move || {
-        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-            if tx.send(line).is_err() {
-                break;
-            }
-        }
-    });
+    let (child, rx) = tools::alfd_run_lines(&config, &[]);
     (child, rx, address)
 }
 

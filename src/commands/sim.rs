@@ -168,11 +168,11 @@ pub fn run(a: Args) -> Result<ExitCode> {
     // The CPU beside the wall time: on a shared machine the wall time of the same
     // flight varies by a third (docs/performance.md); CPU over wall time says how
     // busy the cores were, and so whether the flight or the machine was slow.
-    let cpu = process_cpu_s().map_or(String::new(), |c| format!(", {c:.0} s of CPU"));
     text.push_str(&format!(
-        "alfd sim: {} in {:.0} s{cpu}\n",
+        "alfd sim: {} in {:.0} s, {:.0} s of CPU\n",
         out.flight_dir.display(),
-        started.elapsed().as_secs_f64()
+        started.elapsed().as_secs_f64(),
+        process_cpu_s()
     ));
     text.push_str(out.summary.render_text().trim_end());
     text.push('\n');
@@ -245,15 +245,9 @@ pub fn run(a: Args) -> Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// User and system CPU seconds of this process so far, every thread's.
-fn process_cpu_s() -> Option<f64> {
-    let mut u = std::mem::MaybeUninit::<libc::rusage>::zeroed();
-    // SAFETY: `u` is a valid, writable rusage; RUSAGE_SELF is the calling process.
-    if unsafe { libc::getrusage(libc::RUSAGE_SELF, u.as_mut_ptr()) } != 0 {
-        return None;
-    }
-    // SAFETY: getrusage succeeded, so it filled `u` (and it was zeroed before).
-    let u = unsafe { u.assume_init() };
-    let s = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
-    Some(s(u.ru_utime) + s(u.ru_stime))
+/// CPU seconds of this process so far, every thread's, user and system (the kernel's
+/// process CPU clock, as `alfd-clock` reads the monotonic one).
+fn process_cpu_s() -> f64 {
+    let t = rustix::time::clock_gettime(rustix::time::ClockId::ProcessCPUTime);
+    t.tv_sec as f64 + t.tv_nsec as f64 * 1e-9
 }

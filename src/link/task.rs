@@ -28,6 +28,13 @@ type Conn = Arc<Wire>;
 const OPEN_TIMEOUT: Duration = Duration::from_secs(2);
 /// A lost connection is logged at most this often.
 const CLOSED_SAID_EVERY: Duration = Duration::from_secs(10);
+const WRITE_TIMEOUT: Duration = Duration::from_secs(1);
+const PUBLISH_EVERY: Duration = Duration::from_millis(50);
+const UNSYNCED_TIMESYNC_EVERY: Duration = Duration::from_millis(100);
+const RATE_RETRIES: u32 = 10;
+/// HOME_POSITION / GPS_GLOBAL_ORIGIN requests: every heartbeat tick (1 s) this many times, then
+/// every 10th tick (an EKF may take minutes to get its origin).
+const ORIGIN_FAST_TRIES: u32 = 30;
 
 /// Why the link could not connect, as the operator was last told: a link that does not
 /// come up (a wrong serial device, a port nobody serves) is reported once per reason, not
@@ -45,13 +52,6 @@ impl Told {
         true
     }
 }
-const WRITE_TIMEOUT: Duration = Duration::from_secs(1);
-const PUBLISH_EVERY: Duration = Duration::from_millis(50);
-const UNSYNCED_TIMESYNC_EVERY: Duration = Duration::from_millis(100);
-const RATE_RETRIES: u32 = 10;
-/// HOME_POSITION / GPS_GLOBAL_ORIGIN requests: every heartbeat tick (1 s) this many times, then
-/// every 10th tick (an EKF may take minutes to get its origin).
-const ORIGIN_FAST_TRIES: u32 = 30;
 
 /// Failures that stop the link (everything else is retried).
 #[derive(Debug, thiserror::Error)]

@@ -8,6 +8,7 @@
 use std::io::{BufRead, BufReader};
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
+use std::sync::mpsc::Receiver;
 use std::thread::JoinHandle;
 
 /// `alfd run`'s config against the autopilot at `address`: 160×120 synthetic depth and colour
@@ -59,6 +60,13 @@ pub fn line_sim(dir: &Path) -> firmware_sim::SimConfig {
 /// `alfd run --log-format json --config CONFIG` as a child, with `env` set (`Some`) or
 /// removed (`None`), and a thread collecting its stderr's lines until it exits.
 pub fn alfd_run(config: &Path, env: &[(&str, Option<&str>)]) -> (Child, JoinHandle<Vec<String>>) {
+    let (child, lines) = alfd_run_lines(config, env);
+    (child, std::thread::spawn(move || lines.iter().collect()))
+}
+
+/// [`alfd_run`], its stderr's lines sent as they come (for a test that acts on a line
+/// while the daemon runs).
+pub fn alfd_run_lines(config: &Path, env: &[(&str, Option<&str>)]) -> (Child, Receiver<String>) {
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_alfd"));
     cmd.args(["run", "--log-format", "json", "--config"])
         .arg(config)
@@ -73,13 +81,15 @@ pub fn alfd_run(config: &Path, env: &[(&str, Option<&str>)]) -> (Child, JoinHand
     }
     let mut child = cmd.spawn().expect("alfd starts");
     let stderr = child.stderr.take().expect("stderr is piped");
-    let log = std::thread::spawn(move || {
-        BufReader::new(stderr)
-            .lines()
-            .map_while(Result::ok)
-            .collect::<Vec<_>>()
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+            if tx.send(line).is_err() {
+                break;
+            }
+        }
     });
-    (child, log)
+    (child, rx)
 }
 
 fn required(present: bool, test: &str, what: &str, install: &str) -> bool {
