@@ -55,8 +55,13 @@ pub fn run(a: Args) -> Result<ExitCode> {
 }
 
 fn print_report(r: &RunReport) {
+    // Only the bench's synthetic camera waits for a pose; a real one never does.
+    let unposed = match r.frames_unposed {
+        0 => String::new(),
+        n => format!(", {n} not rendered before the autopilot gave a position"),
+    };
     tracing::info!(
-        "stopped: {} captures in {} ({} without an image, {} images as the camera encoded them), {} depth frames ({} skipped while busy, {} bad), {} errors",
+        "stopped: {} captures in {} ({} without an image, {} images as the camera encoded them), {} depth frames ({} skipped while busy, {} bad{unposed}), {} errors",
         r.records.len(),
         r.flight_dir.display(),
         r.frames_missing,

@@ -38,6 +38,7 @@ pub struct Counters {
     pub source_gaps: AtomicU64,
     pub skipped_busy: AtomicU64,
     pub bad_frames: AtomicU64,
+    pub unposed_frames: AtomicU64,
 }
 
 /// What the estimator loop kept, returned when it ends.
@@ -118,6 +119,9 @@ pub async fn depth_loop(
             }
             Ok(None) => return,
             Err(SourceError::Missed { .. }) => {}
+            Err(SourceError::Unposed { .. }) => {
+                counters.unposed_frames.fetch_add(1, Ordering::Relaxed);
+            }
             Err(SourceError::BadFrame { .. }) => {
                 counters.bad_frames.fetch_add(1, Ordering::Relaxed);
             }
@@ -291,5 +295,51 @@ pub async fn estimator_loop(
                 return report;
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A source that answers from a script, then ends.
+    struct Scripted(std::vec::IntoIter<Result<Option<Stamped<DepthImage>>, SourceError>>);
+
+    impl DepthSource for Scripted {
+        fn intrinsics(&self) -> Intrinsics {
+            Intrinsics::from_hfov_deg(8, 6, 69.0, None).unwrap()
+        }
+        fn next_depth(&mut self) -> Result<Option<Stamped<DepthImage>>, SourceError> {
+            self.0.next().unwrap_or(Ok(None))
+        }
+    }
+
+    /// The bench's synthetic camera before the autopilot's first position used to
+    /// count its frames as bad: 451 in 15 s of `alfd run` with no autopilot.
+    #[tokio::test]
+    async fn frames_without_a_pose_are_not_counted_bad() {
+        let script = vec![
+            Err(SourceError::Unposed { seq: 1 }),
+            Err(SourceError::Unposed { seq: 2 }),
+            Err(SourceError::BadFrame {
+                seq: 3,
+                reason: "truncated".into(),
+            }),
+        ];
+        let (tx, _rx) = mpsc::channel(1);
+        let (fail, _fail_rx) = mpsc::channel(1);
+        let (_trigger, shutdown) = super::super::shutdown::channel();
+        let counters = Arc::new(Counters::default());
+        depth_loop(
+            Box::new(Scripted(script.into_iter())),
+            tx,
+            fail,
+            shutdown,
+            counters.clone(),
+        )
+        .await;
+        assert_eq!(counters.unposed_frames.load(Ordering::Relaxed), 2);
+        assert_eq!(counters.bad_frames.load(Ordering::Relaxed), 1);
+        assert_eq!(counters.depth_frames.load(Ordering::Relaxed), 0);
     }
 }

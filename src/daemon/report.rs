@@ -39,6 +39,8 @@ pub struct RunReport {
     /// Frames the source never delivered (gaps in its frame counter).
     pub frames_missed_by_source: u64,
     pub frames_bad: u64,
+    /// Simulated depth frames not rendered for want of a pose (the bench only).
+    pub frames_unposed: u64,
     pub frames_suspended: u64,
     pub captures_decided: u64,
     pub capture_errors: Vec<String>,
@@ -113,6 +115,7 @@ pub(crate) fn report(
         frames_skipped_busy: counters.skipped_busy.load(Ordering::Relaxed),
         frames_missed_by_source: counters.source_gaps.load(Ordering::Relaxed),
         frames_bad: counters.bad_frames.load(Ordering::Relaxed),
+        frames_unposed: counters.unposed_frames.load(Ordering::Relaxed),
         frames_suspended: est.frames_suspended,
         captures_decided: c.captures_decided,
         camera_commands: c.camera_commands,

@@ -324,7 +324,7 @@ impl TryFrom<RawLinkConfig> for LinkConfig {
             bad(
                 "address",
                 format!(
-                    "`{}`: {e} (expected serial:PATH:BAUD, udpin:, udpout:, tcpout:)",
+                    "`{}`: {e} (expected serial:PATH:BAUD, or udpin:, udpout:, udpbcast:, tcpin: or tcpout: then HOST:PORT)",
                     r.address
                 ),
             )

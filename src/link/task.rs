@@ -283,8 +283,12 @@ impl Link {
                     closes += 1;
                     let now = Instant::now();
                     if closed_said.is_none_or(|t| now >= t + CLOSED_SAID_EVERY) {
+                        let times = match closes {
+                            1 => String::new(),
+                            n => format!(" {n} times since the last warning"),
+                        };
                         tracing::warn!(
-                            "MAVLink link on {} closed ({closes} times since last said); reconnecting",
+                            "MAVLink link on {} closed{times}; reconnecting",
                             self.cfg.address
                         );
                         (closed_said, closes) = (Some(now), 0);

@@ -47,6 +47,10 @@ pub enum SourceError {
     /// frame counter counts it.
     #[error("frame {seq} never came")]
     Missed { seq: u64 },
+    /// A simulated camera with no pose yet to render from (the bench before the
+    /// autopilot's first position): skip it. Nothing is wrong with the frame.
+    #[error("frame {seq}: no pose to render it from")]
+    Unposed { seq: u64 },
     /// Configuration or setup that will not work: fatal.
     #[error("{0}")]
     Fatal(String),

@@ -185,10 +185,7 @@ impl<P: PoseAt, C: Clock> DepthSource for SyntheticDepth<P, C> {
         let seq = self.seq;
         self.seq += behind;
         let Some(pose) = self.pose.pose_at(t) else {
-            return Err(SourceError::BadFrame {
-                seq,
-                reason: "no pose at the frame's instant".into(),
-            });
+            return Err(SourceError::Unposed { seq });
         };
         let camera = pose.camera(self.intrinsics);
         let frame = Frame {
@@ -547,7 +544,7 @@ mod tests {
         assert!(src.next_depth().is_ok());
         assert!(matches!(
             src.next_depth(),
-            Err(SourceError::BadFrame { seq: 2, .. })
+            Err(SourceError::Unposed { seq: 2 })
         ));
         assert_eq!(src.next_depth().unwrap().unwrap().mono_ns, 200_000_000);
     }
