@@ -3,6 +3,7 @@
 
 use crate::capture::QualityRecord;
 use crate::core::estimate::DecimationChoice;
+use crate::core::estimate::NoEstimate;
 use crate::core::{Estimate, EstimatorParams};
 use serde_json::{json, Value};
 
@@ -25,6 +26,32 @@ pub struct InputInfo {
     pub pitch_deg: f64,
 }
 
+/// Why a frame gave no estimate, in words an operator can act on: for too few valid
+/// pixels, how many were and how many lay beyond the depth camera's range (a RealSense's
+/// 1 mm Z16 ends at 65.5 m: flown higher, every pixel is beyond it); for the pitch, the
+/// pitch and the limit with its key.
+pub fn no_estimate_reason(why: NoEstimate, e: &Estimate, params: &EstimatorParams) -> String {
+    match why {
+        NoEstimate::TooFewValidPixels if e.samples > 0 => {
+            let share = |n: usize| 100.0 * n as f64 / e.samples as f64;
+            format!(
+                "{:.0} % of the depth valid, {:.0} % needed; {:.0} % beyond the depth camera's range",
+                100.0 * e.valid_fraction,
+                100.0 * params.valid_fraction_min,
+                share(e.far_below_samples)
+            )
+        }
+        NoEstimate::PitchNearHorizontal => format!(
+            "pitch {:.1} deg is beyond estimator.pitch_max_deg ({:.1}): the camera looks along \
+             the track, where the spacing model does not hold",
+            e.pitch_rad.to_degrees(),
+            params.pitch_max_rad.to_degrees()
+        ),
+        NoEstimate::InvalidPitch => "the attitude's pitch is not a number".into(),
+        other => other.as_str().replace('_', " "),
+    }
+}
+
 pub fn estimate_json(
     e: &Estimate,
     params: &EstimatorParams,
@@ -38,6 +65,7 @@ pub fn estimate_json(
     json!({
         "status": if ok { "ok" } else { "no_estimate" },
         "reason": e.no_estimate.map(|r| r.as_str()),
+        "reason_text": e.no_estimate.map(|r| no_estimate_reason(r, e, params)),
         "valid_fraction": num(Some(e.valid_fraction)),
         "far_below_fraction": num(Some(if e.samples > 0 {
             e.far_below_samples as f64 / e.samples as f64
@@ -149,7 +177,7 @@ pub fn estimate_text(
         );
     }
     if let Some(r) = e.no_estimate {
-        let _ = writeln!(s, "no estimate: {}", r.as_str());
+        let _ = writeln!(s, "no estimate: {}", no_estimate_reason(r, e, params));
         return s;
     }
     if let Some(i) = e.inv_depth {

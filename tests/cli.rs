@@ -423,6 +423,11 @@ fn no_estimate_is_reported_not_guessed() {
     ]);
     assert_eq!(v["status"], "no_estimate");
     assert_eq!(v["reason"], "too_few_valid_pixels");
+    let text = v["reason_text"].as_str().unwrap();
+    assert!(
+        text.starts_with("0 % of the depth valid, 20 % needed"),
+        "{text}"
+    );
     assert!(v["spacing_m"]["chosen"].is_null());
     let v = json(&[
         "estimate",
@@ -434,6 +439,12 @@ fn no_estimate_is_reported_not_guessed() {
         "89.5",
     ]);
     assert_eq!(v["reason"], "pitch_near_horizontal");
+    // In words, with the pitch and the key that limits it (was the code only).
+    let text = v["reason_text"].as_str().unwrap();
+    assert!(
+        text.starts_with("pitch 89.5 deg is beyond estimator.pitch_max_deg"),
+        "{text}"
+    );
 }
 
 #[test]

@@ -327,7 +327,7 @@ impl Coordinator {
             let text = match (&e.no_estimate, fallback) {
                 (Some(why), true) => format!(
                     "alfd: no estimate ({}), fallback spacing {:.1} m",
-                    no_estimate_reason(*why, &e, self.config.estimator.valid_fraction_min),
+                    crate::report::no_estimate_reason(*why, &e, &self.config.estimator),
                     self.config.trigger.fallback_spacing_m
                 ),
                 (_, true) => "alfd: no estimate, fallback spacing".to_string(),
@@ -879,24 +879,6 @@ impl Coordinator {
                 .into_iter()
                 .map(send),
         );
-    }
-}
-
-/// Why a frame gave no estimate, in words an operator can act on: for too few valid
-/// pixels, how many were and how many lay beyond the depth camera's range (a RealSense's
-/// 1 mm Z16 ends at 65.5 m: flown higher, every pixel is beyond it).
-fn no_estimate_reason(why: NoEstimate, e: &Estimate, valid_min: f64) -> String {
-    match why {
-        NoEstimate::TooFewValidPixels if e.samples > 0 => {
-            let share = |n: usize| 100.0 * n as f64 / e.samples as f64;
-            format!(
-                "{:.0} % of the depth valid, {:.0} % needed; {:.0} % beyond the depth camera's range",
-                100.0 * e.valid_fraction,
-                100.0 * valid_min,
-                share(e.far_below_samples)
-            )
-        }
-        other => other.as_str().replace('_', " "),
     }
 }
 
