@@ -17,7 +17,6 @@ use crate::core::distset::{
     Counting, DistanceSetter, DistanceSetterParams, SinceLastPicture, ARDUPILOT_CAMERA_UPDATE_S,
     PX4_TRIGGER_POLL_S,
 };
-use crate::core::estimate::NoEstimate;
 use crate::core::estimate::Terms;
 use crate::core::geo::LocalFrame;
 use crate::core::pose::Pose;
@@ -931,6 +930,7 @@ fn captured(r: &CaptureRecord, success: bool) -> Captured {
 mod tests {
     use super::*;
     use crate::core::allowlist::Trust;
+    use crate::core::estimate::NoEstimate;
     use crate::core::geo::Geodetic;
     use glam::{DQuat, DVec3};
 
