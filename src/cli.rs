@@ -37,6 +37,9 @@ enum Command {
     CheckConfig(commands::check_config::Args),
     /// Error against run time of every decimation level and model.
     Tradeoff(commands::tradeoff::Args),
+    /// Write a flight's exports (geo.txt, transforms.json) from its manifest: for a
+    /// flight that stopped without them (power cut, SIGKILL).
+    Export(commands::export::Args),
     /// Ground-truth evaluation on the synthetic scenes: tables, JSON and plots.
     #[cfg(feature = "sim")]
     Eval(commands::eval::Args),
@@ -60,6 +63,7 @@ pub fn run() -> Result<ExitCode> {
         Command::Estimate(a) => commands::estimate::run(a),
         Command::CheckConfig(a) => commands::check_config::run(a),
         Command::Tradeoff(a) => commands::tradeoff::run(a),
+        Command::Export(a) => commands::export::run(a),
         #[cfg(feature = "sim")]
         Command::Eval(a) => commands::eval::run(a),
     }

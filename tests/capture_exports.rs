@@ -352,3 +352,99 @@ fn telemetry_tlog_holds_timestamped_frames_as_received() {
     assert_eq!(mem.telemetry_synced, mem.telemetry.len());
     assert!(mem.free_bytes().is_none());
 }
+
+/// `alfd export DIR`, its exit status and stdout, stderr.
+fn alfd_export(dir: &std::path::Path) -> (std::process::ExitStatus, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_alfd"))
+        .arg("export")
+        .arg(dir)
+        .output()
+        .unwrap();
+    (
+        out.status,
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// A flight cut short (power lost mid-append: a torn last line, a temporary) has its
+/// images and manifest but no exports; `alfd export` writes the ones the daemon
+/// would have written at its stop, from the complete lines.
+#[test]
+fn a_flight_cut_short_gets_its_exports_from_alfd_export() {
+    let tmp = tempfile::tempdir().unwrap();
+    let flight_dir = tmp.path().join("flight-001");
+    let records = flight();
+    {
+        let mut store = DirStore::open(&flight_dir).unwrap();
+        for r in &records {
+            let image = r.image.as_ref().map(|_| vec![0xFFu8, 0xD8, 0xFF, 0xD9]);
+            log_capture(&mut store, r, image.as_deref()).unwrap();
+        }
+    }
+    let manifest = flight_dir.join("manifest.jsonl");
+    let complete = fs::read(&manifest).unwrap();
+    let mut torn = complete.clone();
+    torn.extend_from_slice(b"{\"seq\":4,\"ima");
+    fs::write(&manifest, &torn).unwrap();
+    fs::write(flight_dir.join(".IMG_000004.jpg.tmp"), b"half").unwrap();
+    assert!(!flight_dir.join(GEO_TXT).exists());
+
+    let (status, stdout, stderr) = alfd_export(&flight_dir);
+    assert!(status.success(), "{stderr}");
+    let mut want = MemStore::default();
+    write_exports(&mut want, &records).unwrap();
+    for name in [GEO_TXT, TRANSFORMS_JSON] {
+        assert_eq!(
+            fs::read(flight_dir.join(name)).unwrap(),
+            want.exports[name],
+            "{name}"
+        );
+    }
+    assert_eq!(
+        fs::read(&manifest).unwrap(),
+        complete,
+        "the torn line is cut"
+    );
+    assert!(!flight_dir.join(".IMG_000004.jpg.tmp").exists());
+    assert!(stdout.contains("3 captures in manifest.jsonl"), "{stdout}");
+    assert!(stdout.contains("recovered        13 bytes"), "{stdout}");
+    assert!(
+        stdout.contains("geo.txt          2 images (1 skipped: no_image 1)"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("transforms.json  2 frames"), "{stdout}");
+
+    // An image lost since (a card copied in part) is named, not passed over.
+    fs::remove_file(flight_dir.join("IMG_000002.jpg")).unwrap();
+    let (status, stdout, _) = alfd_export(&flight_dir);
+    assert!(status.success());
+    assert!(
+        stdout.contains("missing images   1 listed but not in the directory: IMG_000002.jpg"),
+        "{stdout}"
+    );
+}
+
+/// A directory a daemon still writes is refused (its temporaries are images in
+/// flight), and a path without a manifest is not made a flight directory.
+#[test]
+fn alfd_export_refuses_a_flight_in_use_and_a_path_without_a_manifest() {
+    let tmp = tempfile::tempdir().unwrap();
+    let flight_dir = tmp.path().join("flight-001");
+    let mut store = DirStore::open(&flight_dir).unwrap();
+    let r = &flight()[0];
+    log_capture(&mut store, r, Some(&[0xFF, 0xD8, 0xFF, 0xD9])).unwrap();
+    fs::write(flight_dir.join(".IMG_000002.jpg.tmp"), b"being written").unwrap();
+    let (status, _, stderr) = alfd_export(&flight_dir);
+    assert_eq!(status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("in use by another process"), "{stderr}");
+    assert!(flight_dir.join(".IMG_000002.jpg.tmp").exists());
+    assert!(!flight_dir.join(GEO_TXT).exists());
+    drop(store);
+
+    let nowhere = tmp.path().join("flight-002");
+    let (status, _, stderr) = alfd_export(&nowhere);
+    assert_eq!(status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("no manifest.jsonl here"), "{stderr}");
+    assert!(!nowhere.exists());
+}

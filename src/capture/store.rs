@@ -33,6 +33,9 @@ pub enum StoreError {
     BadName { name: String },
     #[error("{}: already exists; one writer per flight directory, sequence numbers never reused", path.display())]
     Exists { path: PathBuf },
+    /// Another process holds the flight directory (a daemon still writing it).
+    #[error("{}: in use by another process (one writer per flight directory)", path.display())]
+    InUse { path: PathBuf },
     #[error("a manifest line must not contain a newline")]
     BadLine,
 }
@@ -189,10 +192,15 @@ fn append_or_roll_back<T: Tail>(
     }
 }
 
-/// One flight's directory on disk.
+/// One flight's directory on disk, held by an exclusive lock (`flock` on the
+/// directory) while the store lives: a second writer, or `alfd export` while the
+/// daemon writes, is refused instead of removing the temporaries of images in flight.
 #[derive(Debug)]
 pub struct DirStore {
     dir: PathBuf,
+    /// The directory, open for its lock only; the kernel releases it with the
+    /// process, so a crashed daemon leaves none behind.
+    _lock: File,
     manifest: File,
     manifest_len: u64,
     telemetry: File,
@@ -207,6 +215,14 @@ impl DirStore {
     pub fn open(dir: impl Into<PathBuf>) -> Result<DirStore, StoreError> {
         let dir = dir.into();
         fs::create_dir_all(&dir).map_err(|e| io_error(&dir, e))?;
+        let lock = File::open(&dir).map_err(|e| io_error(&dir, e))?;
+        match rustix::fs::flock(&lock, rustix::fs::FlockOperation::NonBlockingLockExclusive) {
+            Ok(()) => {}
+            Err(rustix::io::Errno::WOULDBLOCK) => return Err(StoreError::InUse { path: dir }),
+            // A filesystem without locks still takes captures: the lock is a guard
+            // against a second writer, not a condition of writing.
+            Err(_) => {}
+        }
         let entries = fs::read_dir(&dir).map_err(|e| io_error(&dir, e))?;
         for entry in entries {
             let entry = entry.map_err(|e| io_error(&dir, e))?;
@@ -225,6 +241,7 @@ impl DirStore {
         sync_dir(&dir)?;
         Ok(DirStore {
             dir,
+            _lock: lock,
             manifest,
             manifest_len,
             telemetry,

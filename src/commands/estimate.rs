@@ -48,10 +48,12 @@ pub struct Args {
     /// Least forward overlap at the nearest depth, 0 to 0.99 ("off": not in force).
     #[arg(long)]
     forward_overlap: Option<String>,
-    /// Largest fraction of an in-between view neither neighbouring capture sees.
+    /// Largest fraction of an in-between view neither neighbouring capture sees,
+    /// 0.000001 to 1 (1: not in force).
     #[arg(long)]
     unseen_fraction_max: Option<f64>,
-    /// Captures every visible surface point must be in.
+    /// Captures every visible surface point must be in, 1 to 100 (1: seen once,
+    /// the coverage bound).
     #[arg(long)]
     views_per_point_min: Option<u32>,
     /// Also compute SSPA (the single slanted plane).

@@ -7,6 +7,7 @@ pub mod check_config;
 pub mod estimate;
 #[cfg(feature = "sim")]
 pub mod eval;
+pub mod export;
 pub mod logs;
 pub mod run;
 #[cfg(feature = "sim")]
