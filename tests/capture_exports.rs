@@ -448,3 +448,52 @@ fn alfd_export_refuses_a_flight_in_use_and_a_path_without_a_manifest() {
     assert!(stderr.contains("no manifest.jsonl here"), "{stderr}");
     assert!(!nowhere.exists());
 }
+
+/// `alfd run` restarted after a flight that stopped without its exports (systemd
+/// restarts a killed daemon into a new flight) writes them before it starts the new
+/// one, and says so; the new flight goes to the next directory.
+#[test]
+fn alfd_run_writes_the_exports_its_last_flight_stopped_without() {
+    let tmp = tempfile::tempdir().unwrap();
+    let captures = tmp.path().join("captures");
+    let last = captures.join("flight-001");
+    let records = flight();
+    {
+        let mut store = DirStore::open(&last).unwrap();
+        for r in &records {
+            let image = r.image.as_ref().map(|_| vec![0xFFu8, 0xD8, 0xFF, 0xD9]);
+            log_capture(&mut store, r, image.as_deref()).unwrap();
+        }
+    }
+    let config = tmp.path().join("alfd.toml");
+    let address = format!("serial:{}:921600", tmp.path().join("no-tty").display());
+    fs::write(
+        &config,
+        tools::synthetic_tower_config(&address, &captures, "frame"),
+    )
+    .unwrap();
+    let (mut child, lines) = tools::alfd_run_lines(&config, &[]);
+    let mut seen = Vec::new();
+    while !seen.iter().any(|l: &String| l.contains("captures go to")) {
+        match lines.recv_timeout(std::time::Duration::from_secs(60)) {
+            Ok(l) => seen.push(l),
+            Err(_) => {
+                child.kill().ok();
+                panic!("no start within 60 s: {seen:#?}");
+            }
+        }
+    }
+    // SAFETY: signalling our own child by its pid.
+    unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGTERM) };
+    assert!(child.wait().unwrap().success());
+    assert!(
+        seen.iter()
+            .any(|l| l.contains("flight-001 stopped without its exports")
+                && l.contains("written now, 3 captures")),
+        "{seen:#?}"
+    );
+    assert!(seen.last().unwrap().contains("flight-002"), "{seen:#?}");
+    let mut want = MemStore::default();
+    write_exports(&mut want, &records).unwrap();
+    assert_eq!(fs::read(last.join(GEO_TXT)).unwrap(), want.exports[GEO_TXT]);
+}

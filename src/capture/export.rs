@@ -1,6 +1,7 @@
 //! Exports of a flight's manifest for the tools that use the images: OpenDroneMap
 //! `geo.txt` and nerfstudio `transforms.json`, with the camera pose maths they
-//! share. Encoders are pure; [`write_exports`] writes them through a store.
+//! share. Encoders are pure; [`write_exports`] writes them through a store, and
+//! [`export_flight`] for a flight directory on disk that stopped without them.
 //!
 //! Frames: the camera (OpenCV axes: x right in the image, y down, z along the
 //! optical axis) equals the vehicle's FRD body frame at camera pitch 0 (image
@@ -13,7 +14,8 @@ use glam::{DMat3, DMat4, DVec3, DVec4};
 use serde::{Deserialize, Serialize};
 
 use super::record::{is_image_name_for, Attitude, CameraIntrinsics, CaptureRecord};
-use super::store::{CaptureStore, StoreError};
+use super::store::{parse_manifest, CaptureStore, DirStore, StoreError, MANIFEST};
+use std::path::Path;
 
 pub const GEO_TXT: &str = "geo.txt";
 pub const TRANSFORMS_JSON: &str = "transforms.json";
@@ -272,6 +274,53 @@ pub fn write_exports<S: CaptureStore + ?Sized>(
         transform_frames,
         geo_skipped,
         transforms_skipped,
+    })
+}
+
+/// What [`export_flight`] found and wrote.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct FlightExport {
+    pub records: usize,
+    /// Bytes of a torn manifest line or telemetry entry cut (a stop mid-write).
+    pub recovered_bytes: u64,
+    /// Complete manifest lines that are not a record: (1-based line, error).
+    pub bad_lines: Vec<(usize, String)>,
+    pub exports: ExportSummary,
+    /// Images the manifest lists that are not in the directory.
+    pub missing_images: Vec<String>,
+}
+
+/// A flight directory's exports written from its manifest's complete lines, as
+/// the daemon writes them at its stop: for a flight cut short (power lost, a
+/// SIGKILL) that has its images and manifest and none. The directory is opened as
+/// a restarted daemon opens it ([`DirStore::open`]: a torn tail cut, temporaries
+/// removed, `InUse` while another process holds it); a path without a manifest is
+/// an error, not made a flight directory.
+pub fn export_flight(dir: &Path) -> Result<FlightExport, StoreError> {
+    let manifest = dir.join(MANIFEST);
+    if !manifest.is_file() {
+        return Err(StoreError::Io {
+            path: manifest,
+            source: std::io::ErrorKind::NotFound.into(),
+        });
+    }
+    let mut store = DirStore::open(dir)?;
+    let m = parse_manifest(&store.manifest_bytes()?);
+    let exports = write_exports(&mut store, &m.records)?;
+    // The manifest lists an image only once it is in place; one missing since (a
+    // card copied in part) is worth knowing before a reconstruction fails on it.
+    let missing_images = m
+        .records
+        .iter()
+        .filter_map(|r| r.image.clone())
+        .filter(|name| !dir.join(name).is_file())
+        .collect();
+    Ok(FlightExport {
+        records: m.records.len(),
+        recovered_bytes: store.recovered_bytes(),
+        bad_lines: m.bad_lines,
+        exports,
+        missing_images,
     })
 }
 

@@ -14,7 +14,10 @@ pub use exif::{
     encode_capture, encode_jpeg, encode_png, exif_app1, find_exif_app1, parse_exif_gps, ExifGps,
     ImageError,
 };
-pub use export::{camera_to_world_gl, geo_txt, transforms, write_exports, ExportSummary};
+pub use export::{
+    camera_to_world_gl, export_flight, geo_txt, transforms, write_exports, ExportSummary,
+    FlightExport,
+};
 pub use record::{
     image_file_name, Attitude, CameraIntrinsics, CaptureMode, CaptureRecord, ClosedLoopRecord,
     ImageFormat, Occlusion, Position, QualityRecord, QualitySpacingM, QualityTargets,

@@ -1,13 +1,16 @@
 //! `alfd run`: the daemon on the devices a config names, until SIGTERM or Ctrl-C.
 
 use super::{bad, runtime, termination};
+use alfd::capture::export::GEO_TXT;
+use alfd::capture::export_flight;
+use alfd::capture::store::MANIFEST;
 use alfd::config::Config;
 use alfd::daemon;
 use alfd::daemon::devices::{self, LinkSlot};
 use alfd::daemon::run::{next_flight_dir, RunOptions, RunReport};
 use alfd::notify::Notifier;
 use anyhow::Result;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 #[derive(clap::Args)]
@@ -32,6 +35,7 @@ pub fn run(a: Args) -> Result<ExitCode> {
         let slot = LinkSlot::default();
         let devices = devices::open(&config, slot.clone())
             .map_err(|e| bad(format!("{}: {e}", a.config.display())))?;
+        finish_last_flight(&config.capture.dir);
         let flight_dir = next_flight_dir(&config.capture.dir);
         tracing::info!("captures go to {}", flight_dir.display());
         let options = RunOptions {
@@ -52,6 +56,46 @@ pub fn run(a: Args) -> Result<ExitCode> {
     print_report(&report);
     rt.shutdown_timeout(std::time::Duration::from_millis(200));
     Ok(ExitCode::SUCCESS)
+}
+
+/// The last flight under `root`, when it stopped without its exports (power lost,
+/// a SIGKILL; systemd then restarts the daemon into a new flight): written now, as
+/// `alfd export` would, so no restart leaves a flight without them. One that took no
+/// capture is left as it is.
+fn finish_last_flight(root: &Path) {
+    let Ok(entries) = std::fs::read_dir(root) else {
+        return;
+    };
+    let last = entries
+        .filter_map(|e| e.ok())
+        .filter_map(|e| {
+            let name = e.file_name();
+            let n: u32 = name.to_str()?.strip_prefix("flight-")?.parse().ok()?;
+            Some((n, e.path()))
+        })
+        .max_by_key(|(n, _)| *n);
+    let Some((_, dir)) = last else { return };
+    let manifest_len = std::fs::metadata(dir.join(MANIFEST)).map_or(0, |m| m.len());
+    if manifest_len == 0 || dir.join(GEO_TXT).exists() {
+        return;
+    }
+    match export_flight(&dir) {
+        Ok(done) => tracing::warn!(
+            "{} stopped without its exports (power lost or killed): written now, {} captures{}",
+            dir.display(),
+            done.records,
+            if done.missing_images.is_empty() {
+                String::new()
+            } else {
+                format!(", {} listed images missing", done.missing_images.len())
+            }
+        ),
+        Err(e) => tracing::warn!(
+            "{} stopped without its exports; writing them failed: {e} (alfd export {} to retry)",
+            dir.display(),
+            dir.display()
+        ),
+    }
 }
 
 fn print_report(r: &RunReport) {

@@ -82,8 +82,9 @@ pub struct RunReport {
 
 #[derive(Debug, thiserror::Error)]
 pub enum RunError {
-    #[error("capture directory {0}: {1}")]
-    Store(PathBuf, String),
+    /// The store's error names its path (the directory, or the file in it).
+    #[error("capture directory: {0}")]
+    Store(crate::capture::StoreError),
     #[error("depth source: {0}")]
     Source(String),
     #[error(transparent)]

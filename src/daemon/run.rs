@@ -365,10 +365,7 @@ fn spawn_estimation(
 fn open_store(options: &mut RunOptions) -> Result<(BoxedStore, u64), RunError> {
     let store: BoxedStore = match options.store.take() {
         Some(s) => s,
-        None => Box::new(
-            DirStore::open(&options.flight_dir)
-                .map_err(|e| RunError::Store(options.flight_dir.clone(), e.to_string()))?,
-        ),
+        None => Box::new(DirStore::open(&options.flight_dir).map_err(RunError::Store)?),
     };
     let last_seq = store
         .manifest_bytes()
