@@ -316,7 +316,7 @@ fn autopilot_distance_flight(
     let dir = tempfile::tempdir().unwrap();
     let a = SimArgs {
         autopilot,
-        speed_mps,
+        speed_mps: Some(speed_mps),
         ..args(dir.path(), CaptureMode::AutopilotDistance)
     };
     let out = run_sim_on_simulated_time(a, SimHooks::default(), std::future::pending())
@@ -540,4 +540,32 @@ fn a_configs_own_scene_is_flown_and_copied() {
         "{} captures",
         out.report.records.len()
     );
+}
+
+/// A scene is flown at its own `survey.speed_mps` unless `--speed-mps` says
+/// otherwise: the sim flew every scene at 10 m/s, the eval scenes' 5 m/s never, so
+/// `alfd sim --scene scenes/roof.toml` was "too fast" with most intervals unavoidably
+/// long.
+#[test]
+fn a_scene_is_flown_at_its_own_speed() {
+    let dir = tempfile::tempdir().unwrap();
+    let tower = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/tower.toml");
+    let text = std::fs::read_to_string(&tower).unwrap();
+    assert!(text.contains("speed_mps = 10.0"));
+    let slow = dir.path().join("tower_slow.toml");
+    std::fs::write(&slow, text.replace("speed_mps = 10.0", "speed_mps = 5.0")).unwrap();
+    let a = SimArgs {
+        scene: Some(slow),
+        ..args(&dir.path().join("out"), CaptureMode::Frame)
+    };
+    let out = run_sim_on_simulated_time(a, SimHooks::default(), std::future::pending())
+        .expect("the sim runs");
+    let r = &out.report.records;
+    assert!(r.len() > 20, "{} captures", r.len());
+    // Over the middle half of the line, past the climb-out and before the end.
+    let (a, b) = (&r[r.len() / 4], &r[3 * r.len() / 4]);
+    let way_m =
+        (b.position.north_m - a.position.north_m).hypot(b.position.east_m - a.position.east_m);
+    let speed_mps = way_m / ((b.mono_ns - a.mono_ns) as f64 * 1e-9);
+    assert!((speed_mps - 5.0).abs() < 0.5, "flown at {speed_mps:.2} m/s");
 }

@@ -24,8 +24,10 @@ pub struct Args {
     out: PathBuf,
     // Negative numbers are taken as values, so that the check below names
     // the flag (not clap's "unexpected argument").
-    #[arg(long, default_value_t = 10.0, allow_negative_numbers = true)]
-    speed_mps: f64,
+    /// Ground speed along the survey (default: the scene's `survey.speed_mps`, 10 m/s
+    /// for the built-in district).
+    #[arg(long, allow_negative_numbers = true)]
+    speed_mps: Option<f64>,
     #[arg(long, default_value_t = 10.0, allow_negative_numbers = true)]
     telemetry_hz: f64,
     #[arg(long, default_value_t = 30.0, allow_negative_numbers = true)]
@@ -94,7 +96,7 @@ enum SimAutopilot {
 pub fn run(a: Args) -> Result<ExitCode> {
     let (model, profile) = (a.model, a.profile);
     for (name, v, max) in [
-        ("--speed-mps", a.speed_mps, 50.0),
+        ("--speed-mps", a.speed_mps.unwrap_or(1.0), 50.0),
         ("--telemetry-hz", a.telemetry_hz, 1000.0),
         ("--fps", a.fps, 240.0),
     ] {

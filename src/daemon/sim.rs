@@ -45,7 +45,8 @@ pub struct SimArgs {
     /// A daemon config to start from (its link address is replaced by the simulator's).
     pub config: Option<PathBuf>,
     pub out: PathBuf,
-    pub speed_mps: f64,
+    /// `None`: the scene's own `survey.speed_mps`.
+    pub speed_mps: Option<f64>,
     pub telemetry_hz: f64,
     pub fps: f64,
     pub width: usize,
@@ -161,7 +162,7 @@ impl Default for SimArgs {
             scene: None,
             config: None,
             out: PathBuf::from("sim-out"),
-            speed_mps: 10.0,
+            speed_mps: None,
             telemetry_hz: 10.0,
             fps: 30.0,
             width: 640,
@@ -435,6 +436,15 @@ pub async fn run_sim_with(
     // A line longer than the scene's would fly off the rendered ground: said,
     // not cut short without a word.
     let line_m = scene.survey.end_x_m - scene.survey.start_x_m;
+    // The scene's survey is flown at its own speed unless told otherwise: the eval
+    // scenes' 5 m/s, not the district's 10.
+    let speed_mps = args.speed_mps.unwrap_or(scene.survey.speed_mps);
+    if speed_mps > 50.0 {
+        return Err(setup(format!(
+            "scene {}'s survey.speed_mps {speed_mps}: alfd sim flies at most 50 m/s; give --speed-mps",
+            scene.name
+        )));
+    }
     if let Some(l) = args.length_m.filter(|&l| l > line_m) {
         return Err(setup(format!(
             "--length-m {l}: scene {}'s survey line is {line_m} m; fly at most that",
@@ -503,7 +513,7 @@ pub async fn run_sim_with(
     // lanes, back at the start after an even one.
     let last_lane_east_m = args.lane_spacing_m * (lanes - 1) as f64;
     let ends_north = lanes % 2 == 1;
-    sc.survey.speed_mps = args.speed_mps;
+    sc.survey.speed_mps = speed_mps;
     // Without wander, as while the synthetic camera rendered pitch only (it now
     // renders the whole attitude, issue 14): the sim's documented figures were
     // flown so.
@@ -686,7 +696,7 @@ pub async fn run_sim_with(
         async move {
             // Past the end of the line (or the requested length), or a deadline
             // well past the time the line takes, whichever is first.
-            let limit = mono_ns() + ((path_m / args.speed_mps.max(0.1) + 30.0) * 1e9) as u64;
+            let limit = mono_ns() + ((path_m / speed_mps.max(0.1) + 30.0) * 1e9) as u64;
             loop {
                 tokio::time::sleep(Duration::from_millis(50)).await;
                 let [north, east, _] = sim.truth_at_mono_ns(mono_ns()).pos_ned_m;
@@ -772,7 +782,7 @@ pub async fn run_sim_with(
         &truth,
         &captures,
         config.trigger.fallback_spacing_m,
-        opportunity_step_m(&args),
+        opportunity_step_m(&args, speed_mps),
     )
     .with_records(&report.records);
     let plots = simreport::plots(&truth, &daemon, &captures, &flight_dir)
@@ -951,13 +961,13 @@ fn capture_positions(
 /// depth frame's for alfd's own trigger; in `autopilot_distance` at least one
 /// of the autopilot's distance checks (PX4 polls every 50 ms: 0.5 m at
 /// 10 m/s), since it cannot fire between them whatever it was asked.
-fn opportunity_step_m(args: &SimArgs) -> f64 {
-    let frame_m = args.speed_mps / args.fps;
+fn opportunity_step_m(args: &SimArgs, speed_mps: f64) -> f64 {
+    let frame_m = speed_mps / args.fps;
     match args.mode {
         CaptureMode::AutopilotDistance => {
             let check_s = firmware_sim::trigger::check_period_ns(args.autopilot)
                 .map_or(0.0, |ns| ns as f64 * 1e-9);
-            frame_m.max(args.speed_mps * check_s)
+            frame_m.max(speed_mps * check_s)
         }
         _ => frame_m,
     }
@@ -973,13 +983,15 @@ mod tests {
     fn an_autopilot_checking_less_often_than_frames_sets_the_opportunity_step() {
         use firmware_sim::Autopilot;
         let step = |mode, autopilot| {
-            opportunity_step_m(&SimArgs {
-                mode,
-                autopilot,
-                speed_mps: 10.0,
-                fps: 30.0,
-                ..SimArgs::default()
-            })
+            opportunity_step_m(
+                &SimArgs {
+                    mode,
+                    autopilot,
+                    fps: 30.0,
+                    ..SimArgs::default()
+                },
+                10.0,
+            )
         };
         let frame = 10.0 / 30.0;
         let d = CaptureMode::AutopilotDistance;
