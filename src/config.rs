@@ -840,14 +840,28 @@ impl RawConfig {
                 t.rate_max_hz.unwrap_or(defaults.rate_max_hz),
                 1000.0,
             )?,
+            // The default never looser than the longest spacing an estimate may choose.
             fallback_spacing_m: positive(
                 "trigger.fallback_spacing_m",
-                t.fallback_spacing_m.unwrap_or(defaults.fallback_spacing_m),
+                t.fallback_spacing_m
+                    .unwrap_or(defaults.fallback_spacing_m.min(estimator.spacing_max_m)),
                 1e4,
             )?,
             margin: fraction("trigger.margin", t.margin.unwrap_or(defaults.margin), 0.5)?,
             closed_loop: t.closed_loop.unwrap_or(defaults.closed_loop),
         };
+        // The fallback holds while the depth is lost: longer than any spacing an
+        // estimate may choose, it would be the flight's least conservative spacing.
+        if trigger.fallback_spacing_m > estimator.spacing_max_m {
+            return Err((
+                "trigger.fallback_spacing_m".into(),
+                format!(
+                    "{} m is longer than sampling.spacing_max_m ({} m): the fallback holds while \
+                     the depth is lost, and must not be looser than any estimate",
+                    trigger.fallback_spacing_m, estimator.spacing_max_m
+                ),
+            ));
+        }
         Ok(Config {
             estimator: estimator.clone(),
             estimator_threads,
@@ -1178,11 +1192,16 @@ mod tests {
             ("[trigger]\nrate_max_hz = 0.0\n", "trigger.rate_max_hz"),
             ("[capture]\njpeg_quality = 101\n", "capture.jpeg_quality"),
             ("[mavlink]\naddress = \"carrier-pigeon:1\"\n", "mavlink.address"),
+            // A fallback looser than any estimate.
+            ("[sampling]\nspacing_max_m = 50.0\n[trigger]\nfallback_spacing_m = 60.0\n", "trigger.fallback_spacing_m"),
         ];
         for (text, field) in cases {
             let e = Config::from_text(text, "x.toml").unwrap_err().to_string();
             assert!(e.contains(field), "{text:?}: {e}");
         }
+        // The default fallback (1 m) is no looser than a shorter cap.
+        let c = Config::from_text("[sampling]\nspacing_max_m = 0.5\n", "x.toml").unwrap();
+        assert_eq!(c.trigger.fallback_spacing_m, 0.5);
         // Fixed spacing with an autopilot-triggered camera needs neither source.
         Config::from_text(
             "[mavlink]\naddress = \"udpout:127.0.0.1:14550\"\n[sampling]\nmodel = \"fixed\"\n[capture]\nmode = \"autopilot_distance\"\n",
