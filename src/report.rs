@@ -3,7 +3,7 @@
 
 use crate::capture::QualityRecord;
 use crate::core::estimate::DecimationChoice;
-use crate::core::estimate::NoEstimate;
+use crate::core::estimate::{Bound, NoEstimate};
 use crate::core::{Estimate, EstimatorParams};
 use serde_json::{json, Value};
 
@@ -290,6 +290,19 @@ pub fn estimate_text(
         params.model.as_str(),
         e.active_bound.map_or("none", |b| b.as_str())
     );
+    // The floor is a config key, not a quality: above the permissible spacing it
+    // breaks the targets, which the figures above show and this line says.
+    if let (Some(Bound::ConfigMin), Some(chosen), Some(permissible)) =
+        (e.active_bound, sp.chosen_m, sp.permissible_m)
+    {
+        if chosen > permissible {
+            let _ = writeln!(
+                s,
+                "               longer than the permissible {}: sampling.spacing_min_m holds it, so the targets are not met there",
+                fmt_m(Some(permissible))
+            );
+        }
+    }
     let _ = writeln!(s, "terms          {}", e.terms.names().join(", "));
     if let Some(b) = e.best_pitch {
         let _ = writeln!(

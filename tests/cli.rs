@@ -181,6 +181,25 @@ fn human_summary_names_the_chosen_spacing_and_its_bound() {
         s.contains("chosen") && s.contains("bound: occlusion"),
         "{s}"
     );
+    assert!(!s.contains("targets are not met"), "{s}");
+    // A 1° lens: the 2 px parallax allows millimetres, the default floor
+    // (spacing_min_m 0.05 m) holds the spacing above it, and says the targets break.
+    let out = alfd(&[
+        "estimate",
+        "--depth",
+        "tests/data/buildings_320x240.png",
+        "--hfov-deg",
+        "1",
+    ]);
+    let s = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        s.contains("chosen         0.050 m (quality model, bound: config_min)"),
+        "{s}"
+    );
+    assert!(
+        s.contains("longer than the permissible 3.491e-3 m: sampling.spacing_min_m holds it, so the targets are not met"),
+        "{s}"
+    );
 }
 
 /// The mapping profile and targets set one by one: the bound follows, and a
