@@ -96,10 +96,11 @@ enum SimAutopilot {
 pub fn run(a: Args) -> Result<ExitCode> {
     let (model, profile) = (a.model, a.profile);
     for (name, v, max) in [
-        ("--speed-mps", a.speed_mps.unwrap_or(1.0), 50.0),
-        ("--telemetry-hz", a.telemetry_hz, 1000.0),
-        ("--fps", a.fps, 240.0),
+        ("--speed-mps", a.speed_mps, 50.0),
+        ("--telemetry-hz", Some(a.telemetry_hz), 1000.0),
+        ("--fps", Some(a.fps), 240.0),
     ] {
+        let Some(v) = v else { continue };
         if !(v.is_finite() && v > 0.0 && v <= max) {
             return Err(bad(format!(
                 "{name} {v}: must be positive and at most {max}"
