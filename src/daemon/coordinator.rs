@@ -17,7 +17,7 @@ use crate::core::distset::{
     Counting, DistanceSetter, DistanceSetterParams, SinceLastPicture, ARDUPILOT_CAMERA_UPDATE_S,
     PX4_TRIGGER_POLL_S,
 };
-use crate::core::estimate::Terms;
+use crate::core::estimate::{Bound, Terms};
 use crate::core::geo::LocalFrame;
 use crate::core::pose::Pose;
 use crate::core::trigger::{self, Capture, Trigger};
@@ -168,6 +168,10 @@ pub struct Coordinator {
     fallback: bool,
     terms: Option<Terms>,
     terms_said_ns: u64,
+    /// Whether `sampling.spacing_min_m` holds the spacing above the permissible one
+    /// (the targets broken), and when that was last said.
+    floored: bool,
+    floor_said_ns: Option<u64>,
     skipped_said: u64,
     last_estimate: Option<Box<Estimate>>,
     last_trigger_ne: Option<[f64; 2]>,
@@ -207,6 +211,8 @@ impl Coordinator {
             fallback: false,
             terms: None,
             terms_said_ns: 0,
+            floored: false,
+            floor_said_ns: None,
             skipped_said: 0,
             last_estimate: None,
             last_trigger_ne: None,
@@ -343,6 +349,28 @@ impl Coordinator {
             let text = format!("alfd: terms {}; bound {bound}", e.terms.names().join(", "));
             self.status(out, MavSeverity::MAV_SEVERITY_INFO, &text);
         }
+        // The floor is a config key, not a quality: held above the permissible
+        // spacing, the captures break the targets the operator set. Said when it
+        // starts, at most every 10 s.
+        let floored = match (e.active_bound, e.spacing.chosen_m, e.spacing.permissible_m) {
+            (Some(Bound::ConfigMin), Some(chosen), Some(permissible)) if chosen > permissible => {
+                Some((chosen, permissible))
+            }
+            _ => None,
+        };
+        if let Some((chosen, permissible)) = floored.filter(|_| !self.floored) {
+            if self
+                .floor_said_ns
+                .is_none_or(|t| mono >= t + 10_000_000_000)
+            {
+                self.floor_said_ns = Some(mono);
+                let text = format!(
+                    "alfd: sampling.spacing_min_m {chosen:.2} m is over the permissible {permissible:.3} m: targets not met"
+                );
+                self.status(out, MavSeverity::MAV_SEVERITY_WARNING, &text);
+            }
+        }
+        self.floored = floored.is_some();
         if self.config.capture.mode == CaptureMode::AutopilotDistance {
             // Counted from the last picture, the distance spans every frame
             // since: it must meet the tightest of their spacings, not only
@@ -1385,6 +1413,56 @@ mod tests {
             "{said}"
         );
         assert!(said.contains("fallback spacing"), "{said}");
+    }
+
+    /// A spacing held above the permissible one by `sampling.spacing_min_m` breaks the
+    /// targets: said as a warning when it starts, not on every frame, and again
+    /// after it ends and starts again at least 10 s later.
+    #[test]
+    fn a_spacing_floor_over_the_permissible_is_warned_of() {
+        let mut co = coordinator("frame", 0);
+        let floored = |t: u64, co: &mut Coordinator, held: bool| {
+            let mut e = Estimate::without_depth(0.0);
+            e.no_estimate = None;
+            e.spacing.permissible_m = Some(0.0035);
+            e.spacing.chosen_m = Some(if held { 0.05 } else { 0.0035 });
+            e.active_bound = Some(if held {
+                Bound::ConfigMin
+            } else {
+                Bound::Parallax
+            });
+            co.on_estimate(
+                EstimatorView::Estimate {
+                    mono_ns: t,
+                    estimate: Box::new(e),
+                },
+                now(t),
+            );
+        };
+        let warnings = |co: &Coordinator| {
+            co.report
+                .statustexts
+                .iter()
+                .filter(|t| t.contains("targets not met"))
+                .cloned()
+                .collect::<Vec<_>>()
+        };
+        for k in 1..=5 {
+            floored(k * S / 10, &mut co, true);
+        }
+        let said = warnings(&co);
+        assert_eq!(said.len(), 1, "{said:?}");
+        assert!(
+            said[0].contains("sampling.spacing_min_m 0.05 m is over the permissible 0.004 m"),
+            "{said:?}"
+        );
+        // Ended and back within 10 s: not said again; after 10 s it is.
+        floored(S, &mut co, false);
+        floored(2 * S, &mut co, true);
+        assert_eq!(warnings(&co).len(), 1);
+        floored(3 * S, &mut co, false);
+        floored(12 * S, &mut co, true);
+        assert_eq!(warnings(&co).len(), 2);
     }
 
     /// The DO_SET_CAM_TRIGG_DISTs among `a`: (distance, param3).
