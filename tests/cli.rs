@@ -560,3 +560,45 @@ fn tradeoff_refuses_what_it_cannot_measure_by_name() {
     rejects(&["tradeoff", "--hfov-deg", "-5"], &["--hfov-deg", "-5"]);
     rejects(&["tradeoff", "--pitch-deg", "NaN"], &["--pitch-deg NaN"]);
 }
+
+/// `alfd eval` refuses, before its first scene, what would fail only after
+/// minutes of evaluation: an output path that is a file ("writing file: File
+/// exists" came after the scenes loaded), a scene directory that is not there,
+/// and `--colmap` with no judge script (every COLMAP result an error at the end).
+#[test]
+fn eval_refuses_what_would_fail_after_minutes() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("a-file");
+    std::fs::write(&file, b"").unwrap();
+    rejects(
+        &["eval", "--scene", "roof", "--out", file.to_str().unwrap()],
+        &["--out", "a-file", "not a directory"],
+    );
+    let out = dir.path().join("eval");
+    let nowhere = dir.path().join("no-scenes");
+    rejects(
+        &[
+            "eval",
+            "--scenes-dir",
+            nowhere.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ],
+        &["--scenes-dir", "no-scenes", "no such directory"],
+    );
+    let script = dir.path().join("no-judge.py");
+    rejects(
+        &[
+            "eval",
+            "--scene",
+            "roof",
+            "--colmap",
+            "--colmap-script",
+            script.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ],
+        &["--colmap-script", "no-judge.py", "no such file"],
+    );
+    assert!(!out.exists(), "a refused eval wrote {}", out.display());
+}

@@ -2,8 +2,8 @@
 
 use super::{bad, emit};
 use anyhow::Result;
-use std::path::PathBuf;
-use std::process::ExitCode;
+use std::path::{Path, PathBuf};
+use std::process::{Command, ExitCode, Stdio};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -33,6 +33,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<ExitCode> {
+    check(&a)?;
     let opts = alfd::eval::EvalOptions {
         scenes_dir: a.scenes_dir,
         out_dir: a.out,
@@ -48,4 +49,42 @@ pub fn run(a: Args) -> Result<ExitCode> {
     })?;
     emit(&format!("wrote {}\n", report.display()))?;
     Ok(ExitCode::SUCCESS)
+}
+
+/// What would fail only after minutes of evaluation, refused before the first
+/// scene: the output path, the scene directory, and COLMAP's script and module.
+fn check(a: &Args) -> Result<()> {
+    if a.out.exists() && !a.out.is_dir() {
+        return Err(bad(format!(
+            "--out {}: exists and is not a directory",
+            a.out.display()
+        )));
+    }
+    let from_dir = a.scenes.is_empty() || a.scenes.iter().any(|s| !Path::new(s).exists());
+    if from_dir && !a.scenes_dir.is_dir() {
+        return Err(bad(format!(
+            "--scenes-dir {}: no such directory (the scene files: run from the repository, or name it)",
+            a.scenes_dir.display()
+        )));
+    }
+    if a.colmap {
+        if !a.colmap_script.is_file() {
+            return Err(bad(format!(
+                "--colmap-script {}: no such file",
+                a.colmap_script.display()
+            )));
+        }
+        let imports = Command::new("python3")
+            .args(["-c", "import pycolmap"])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .status()
+            .is_ok_and(|s| s.success());
+        if !imports {
+            return Err(bad(
+                "--colmap: python3 cannot import pycolmap (pip install pycolmap)",
+            ));
+        }
+    }
+    Ok(())
 }
