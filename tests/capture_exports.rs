@@ -423,6 +423,15 @@ fn a_flight_cut_short_gets_its_exports_from_alfd_export() {
         stdout.contains("missing images   1 listed but not in the directory: IMG_000002.jpg"),
         "{stdout}"
     );
+    // Left out of the exports: a reconstruction tool stops at a file it cannot open.
+    assert!(
+        stdout.contains("geo.txt          1 images (2 skipped: no_image 2)"),
+        "{stdout}"
+    );
+    let geo = fs::read_to_string(flight_dir.join(GEO_TXT)).unwrap();
+    assert!(!geo.contains("IMG_000002.jpg"), "{geo}");
+    let transforms = fs::read_to_string(flight_dir.join(TRANSFORMS_JSON)).unwrap();
+    assert!(!transforms.contains("IMG_000002.jpg"), "{transforms}");
 }
 
 /// A directory a daemon still writes is refused (its temporaries are images in

@@ -286,7 +286,8 @@ pub struct FlightExport {
     /// Complete manifest lines that are not a record: (1-based line, error).
     pub bad_lines: Vec<(usize, String)>,
     pub exports: ExportSummary,
-    /// Images the manifest lists that are not in the directory.
+    /// Images the manifest lists that are not in the directory (left out of the
+    /// exports, skipped as `no_image`).
     pub missing_images: Vec<String>,
 }
 
@@ -306,15 +307,22 @@ pub fn export_flight(dir: &Path) -> Result<FlightExport, StoreError> {
     }
     let mut store = DirStore::open(dir)?;
     let m = parse_manifest(&store.manifest_bytes()?);
-    let exports = write_exports(&mut store, &m.records)?;
     // The manifest lists an image only once it is in place; one missing since (a
-    // card copied in part) is worth knowing before a reconstruction fails on it.
-    let missing_images = m
+    // card copied in part) is named, and left out of the exports as a capture
+    // without an image: a reconstruction tool stops at a file it cannot open.
+    let mut missing_images = Vec::new();
+    let present: Vec<CaptureRecord> = m
         .records
         .iter()
-        .filter_map(|r| r.image.clone())
-        .filter(|name| !dir.join(name).is_file())
+        .cloned()
+        .map(|mut r| {
+            if let Some(name) = r.image.take_if(|name| !dir.join(name).is_file()) {
+                missing_images.push(name);
+            }
+            r
+        })
         .collect();
+    let exports = write_exports(&mut store, &present)?;
     Ok(FlightExport {
         records: m.records.len(),
         recovered_bytes: store.recovered_bytes(),
