@@ -474,11 +474,46 @@ fn alfd_run_writes_the_exports_its_last_flight_stopped_without() {
             log_capture(&mut store, r, image.as_deref()).unwrap();
         }
     }
-    let config = tmp.path().join("alfd.toml");
-    let address = format!("serial:{}:921600", tmp.path().join("no-tty").display());
+    let seen = alfd_run_until_it_starts(tmp.path(), &captures);
+    assert!(
+        seen.iter()
+            .any(|l| l.contains("flight-001 stopped without its exports")
+                && l.contains("written now, 3 captures")),
+        "{seen:#?}"
+    );
+    assert!(seen.last().unwrap().contains("flight-002"), "{seen:#?}");
+    let mut want = MemStore::default();
+    write_exports(&mut want, &records).unwrap();
+    assert_eq!(fs::read(last.join(GEO_TXT)).unwrap(), want.exports[GEO_TXT]);
+}
+
+/// A last flight another process still writes (a second daemon on the same
+/// capture directory) is not taken for one that stopped, nor touched.
+#[test]
+fn alfd_run_leaves_a_last_flight_another_process_writes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let captures = tmp.path().join("captures");
+    let last = captures.join("flight-001");
+    let mut store = DirStore::open(&last).unwrap();
+    log_capture(&mut store, &flight()[0], Some(&[0xFF, 0xD8, 0xFF, 0xD9])).unwrap();
+    let seen = alfd_run_until_it_starts(tmp.path(), &captures);
+    assert!(
+        seen.iter()
+            .any(|l| l.contains("flight-001 is being written by another process")),
+        "{seen:#?}"
+    );
+    assert!(!last.join(GEO_TXT).exists());
+    drop(store);
+}
+
+/// `alfd run` (the tower bench config, no autopilot) over `captures` until it says
+/// where its captures go, then SIGTERM: its log lines to that point.
+fn alfd_run_until_it_starts(dir: &std::path::Path, captures: &std::path::Path) -> Vec<String> {
+    let config = dir.join("alfd.toml");
+    let address = format!("serial:{}:921600", dir.join("no-tty").display());
     fs::write(
         &config,
-        tools::synthetic_tower_config(&address, &captures, "frame"),
+        tools::synthetic_tower_config(&address, captures, "frame"),
     )
     .unwrap();
     let (mut child, lines) = tools::alfd_run_lines(&config, &[]);
@@ -495,14 +530,5 @@ fn alfd_run_writes_the_exports_its_last_flight_stopped_without() {
     // SAFETY: signalling our own child by its pid.
     unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGTERM) };
     assert!(child.wait().unwrap().success());
-    assert!(
-        seen.iter()
-            .any(|l| l.contains("flight-001 stopped without its exports")
-                && l.contains("written now, 3 captures")),
-        "{seen:#?}"
-    );
-    assert!(seen.last().unwrap().contains("flight-002"), "{seen:#?}");
-    let mut want = MemStore::default();
-    write_exports(&mut want, &records).unwrap();
-    assert_eq!(fs::read(last.join(GEO_TXT)).unwrap(), want.exports[GEO_TXT]);
+    seen
 }

@@ -2,8 +2,8 @@
 
 use super::{bad, runtime, termination};
 use alfd::capture::export::GEO_TXT;
-use alfd::capture::export_flight;
 use alfd::capture::store::MANIFEST;
+use alfd::capture::{export_flight, StoreError};
 use alfd::config::Config;
 use alfd::daemon;
 use alfd::daemon::devices::{self, LinkSlot};
@@ -89,6 +89,11 @@ fn finish_last_flight(root: &Path) {
             } else {
                 format!(", {} listed images missing", done.missing_images.len())
             }
+        ),
+        // Not stopped: another daemon writes it (two on one capture.dir).
+        Err(StoreError::InUse { .. }) => tracing::warn!(
+            "{} is being written by another process: is a second alfd running on this capture.dir?",
+            dir.display()
         ),
         Err(e) => tracing::warn!(
             "{} stopped without its exports; writing them failed: {e} (alfd export {} to retry)",
