@@ -559,6 +559,12 @@ fn tradeoff_refuses_what_it_cannot_measure_by_name() {
     rejects(&["tradeoff", "--hfov-deg", "200"], &["--hfov-deg", "170"]);
     rejects(&["tradeoff", "--hfov-deg", "-5"], &["--hfov-deg", "-5"]);
     rejects(&["tradeoff", "--pitch-deg", "NaN"], &["--pitch-deg NaN"]);
+    // A raw Z16 map: the reader's answer sent the user to --width/--height, which
+    // here size the reference scenes and cannot describe the map.
+    rejects(
+        &["tradeoff", "--depth", "tests/data/roof_160x120.z16"],
+        &["--depth", "roof_160x120.z16", "16-bit PNG or a PFM"],
+    );
 }
 
 /// `alfd eval` refuses, before its first scene, what would fail only after

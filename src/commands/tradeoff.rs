@@ -51,8 +51,18 @@ pub fn run(a: Args) -> Result<ExitCode> {
     }
     let mut frames = tradeoff::reference_frames(a.width, a.height, 69.0);
     for path in &a.depth {
+        let format = DepthFormat::from_path(path);
+        // The reader's own answer would send the user to --width/--height,
+        // which here size the reference scenes, not the map.
+        if format == Some(DepthFormat::Z16) {
+            return Err(bad(format!(
+                "--depth {}: a raw Z16 map has no size to read; tradeoff takes a 16-bit PNG or a PFM \
+                 (alfd estimate takes raw Z16 with --width and --height)",
+                path.display()
+            )));
+        }
         let opts = ReadOptions {
-            format: DepthFormat::from_path(path),
+            format,
             ..ReadOptions::default()
         };
         let image = read_depth(path, &opts).map_err(|e| bad(e.to_string()))?;
