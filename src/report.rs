@@ -2,8 +2,7 @@
 //! (every number finite or null) and a short human summary.
 
 use crate::capture::QualityRecord;
-use crate::core::estimate::DecimationChoice;
-use crate::core::estimate::{Bound, NoEstimate};
+use crate::core::estimate::{DecimationChoice, NoEstimate};
 use crate::core::{Estimate, EstimatorParams};
 use serde_json::{json, Value};
 
@@ -290,18 +289,13 @@ pub fn estimate_text(
         params.model.as_str(),
         e.active_bound.map_or("none", |b| b.as_str())
     );
-    // The floor is a config key, not a quality: above the permissible spacing it
-    // breaks the targets, which the figures above show and this line says.
-    if let (Some(Bound::ConfigMin), Some(chosen), Some(permissible)) =
-        (e.active_bound, sp.chosen_m, sp.permissible_m)
-    {
-        if chosen > permissible {
-            let _ = writeln!(
-                s,
-                "               longer than the permissible {}: sampling.spacing_min_m holds it, so the targets are not met there",
-                fmt_m(Some(permissible))
-            );
-        }
+    // The figures above show the broken targets; this line says so.
+    if let Some((_, permissible)) = e.floor_over_permissible() {
+        let _ = writeln!(
+            s,
+            "               longer than the permissible {}: sampling.spacing_min_m holds it, so the targets are not met there",
+            fmt_m(Some(permissible))
+        );
     }
     let _ = writeln!(s, "terms          {}", e.terms.names().join(", "));
     if let Some(b) = e.best_pitch {

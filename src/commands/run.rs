@@ -7,7 +7,7 @@ use alfd::capture::{export_flight, StoreError};
 use alfd::config::Config;
 use alfd::daemon;
 use alfd::daemon::devices::{self, LinkSlot};
-use alfd::daemon::run::{next_flight_dir, RunOptions, RunReport};
+use alfd::daemon::run::{last_flight_dir, next_flight_dir, RunOptions, RunReport};
 use alfd::notify::Notifier;
 use anyhow::Result;
 use std::path::{Path, PathBuf};
@@ -63,18 +63,9 @@ pub fn run(a: Args) -> Result<ExitCode> {
 /// `alfd export` would, so no restart leaves a flight without them. One that took no
 /// capture is left as it is.
 fn finish_last_flight(root: &Path) {
-    let Ok(entries) = std::fs::read_dir(root) else {
+    let Some(dir) = last_flight_dir(root) else {
         return;
     };
-    let last = entries
-        .filter_map(|e| e.ok())
-        .filter_map(|e| {
-            let name = e.file_name();
-            let n: u32 = name.to_str()?.strip_prefix("flight-")?.parse().ok()?;
-            Some((n, e.path()))
-        })
-        .max_by_key(|(n, _)| *n);
-    let Some((_, dir)) = last else { return };
     let manifest_len = std::fs::metadata(dir.join(MANIFEST)).map_or(0, |m| m.len());
     if manifest_len == 0 || dir.join(GEO_TXT).exists() {
         return;

@@ -17,7 +17,7 @@ use crate::core::distset::{
     Counting, DistanceSetter, DistanceSetterParams, SinceLastPicture, ARDUPILOT_CAMERA_UPDATE_S,
     PX4_TRIGGER_POLL_S,
 };
-use crate::core::estimate::{Bound, Terms};
+use crate::core::estimate::Terms;
 use crate::core::geo::LocalFrame;
 use crate::core::pose::Pose;
 use crate::core::trigger::{self, Capture, Trigger};
@@ -349,15 +349,9 @@ impl Coordinator {
             let text = format!("alfd: terms {}; bound {bound}", e.terms.names().join(", "));
             self.status(out, MavSeverity::MAV_SEVERITY_INFO, &text);
         }
-        // The floor is a config key, not a quality: held above the permissible
-        // spacing, the captures break the targets the operator set. Said when it
-        // starts, at most every 10 s.
-        let floored = match (e.active_bound, e.spacing.chosen_m, e.spacing.permissible_m) {
-            (Some(Bound::ConfigMin), Some(chosen), Some(permissible)) if chosen > permissible => {
-                Some((chosen, permissible))
-            }
-            _ => None,
-        };
+        // Captures held above the permissible spacing by the floor break the
+        // targets the operator set: said when it starts, at most every 10 s.
+        let floored = e.floor_over_permissible();
         if let Some((chosen, permissible)) = floored.filter(|_| !self.floored) {
             if self
                 .floor_said_ns
@@ -958,7 +952,7 @@ fn captured(r: &CaptureRecord, success: bool) -> Captured {
 mod tests {
     use super::*;
     use crate::core::allowlist::Trust;
-    use crate::core::estimate::NoEstimate;
+    use crate::core::estimate::{Bound, NoEstimate};
     use crate::core::geo::Geodetic;
     use glam::{DQuat, DVec3};
 

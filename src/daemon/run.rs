@@ -82,12 +82,29 @@ pub struct RunOptions {
     pub memory_wire: Option<mpsc::Receiver<tokio::io::DuplexStream>>,
 }
 
+/// A flight directory's name: `flight-NNN`.
+const FLIGHT_PREFIX: &str = "flight-";
+
 /// The first free `flight-NNN` under `root`.
 pub fn next_flight_dir(root: &Path) -> PathBuf {
     (1..)
-        .map(|n| root.join(format!("flight-{n:03}")))
+        .map(|n| root.join(format!("{FLIGHT_PREFIX}{n:03}")))
         .find(|p| !p.exists())
         .expect("an endless range has a free name")
+}
+
+/// The highest-numbered `flight-NNN` under `root`, if any.
+pub fn last_flight_dir(root: &Path) -> Option<PathBuf> {
+    std::fs::read_dir(root)
+        .ok()?
+        .filter_map(|e| e.ok())
+        .filter_map(|e| {
+            let name = e.file_name();
+            let n: u32 = name.to_str()?.strip_prefix(FLIGHT_PREFIX)?.parse().ok()?;
+            Some((n, e.path()))
+        })
+        .max_by_key(|(n, _)| *n)
+        .map(|(_, dir)| dir)
 }
 
 /// Runs the daemon until `shutdown` resolves or the depth source ends.

@@ -287,6 +287,22 @@ impl Estimate {
         self.no_estimate.is_none()
     }
 
+    /// `(chosen, permissible)` when `spacing_min_m` holds the chosen spacing above
+    /// the permissible one: the floor is a config key, not a quality, so the
+    /// targets are broken there.
+    pub fn floor_over_permissible(&self) -> Option<(f64, f64)> {
+        match (
+            self.active_bound,
+            self.spacing.chosen_m,
+            self.spacing.permissible_m,
+        ) {
+            (Some(Bound::ConfigMin), Some(chosen), Some(permissible)) if chosen > permissible => {
+                Some((chosen, permissible))
+            }
+            _ => None,
+        }
+    }
+
     /// The quality model's predictions at another spacing (the trigger's, when
     /// the rate limit holds it above the estimate's); `None` for other models.
     pub fn predict_at(&self, spacing_m: f64) -> Option<QualityPrediction> {
