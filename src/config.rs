@@ -10,7 +10,7 @@ use crate::core::params::{
     Decimation, GainModel, AUTO_RECALIBRATE_FRAMES, DECIMATION_BUDGET, DECIMATION_LEVELS,
 };
 use crate::core::trigger::TriggerParams;
-use crate::core::{EstimatorParams, Model, ParamError, Profile, TrackAxis};
+use crate::core::{EstimatorParams, Model, ParamError, Profile, Quality, TrackAxis};
 use crate::link::{LinkConfig, RawLinkConfig};
 use crate::source::select::DeviceSelector;
 use serde::Deserialize;
@@ -145,16 +145,46 @@ pub struct RawQuality {
     /// A number of pixels, or `false` to take the target out of force.
     pub parallax_px: Option<RawTarget>,
     pub forward_overlap: Option<RawTarget>,
-    pub unseen_fraction_max: Option<f64>,
-    pub views_per_point_min: Option<i64>,
+    /// A fraction, or `false`: not in force (1, every view may go unseen).
+    pub unseen_fraction_max: Option<RawTarget>,
+    /// A count, or `false`: not in force (1, seen once: the coverage bound).
+    pub views_per_point_min: Option<RawTarget>,
 }
 
-/// A target's value, or `false`: not in force.
-#[derive(Debug, Clone, Copy, Deserialize)]
-#[serde(untagged)]
+/// A target's value, or `false`: not in force (`configs/estimator.toml` says
+/// so of every `[quality]` key).
+#[derive(Debug, Clone, Copy)]
 pub enum RawTarget {
     Value(f64),
     Off(bool),
+}
+
+/// By hand rather than `#[serde(untagged)]`, whose error for a string or a
+/// table ("did not match any variant") names neither what the key takes nor
+/// what it got.
+impl<'de> Deserialize<'de> for RawTarget {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct Visitor;
+        impl serde::de::Visitor<'_> for Visitor {
+            type Value = RawTarget;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a number, or false to take the target out of force")
+            }
+            fn visit_bool<E>(self, v: bool) -> Result<RawTarget, E> {
+                Ok(RawTarget::Off(v))
+            }
+            fn visit_f64<E>(self, v: f64) -> Result<RawTarget, E> {
+                Ok(RawTarget::Value(v))
+            }
+            fn visit_i64<E>(self, v: i64) -> Result<RawTarget, E> {
+                Ok(RawTarget::Value(v as f64))
+            }
+            fn visit_u64<E>(self, v: u64) -> Result<RawTarget, E> {
+                Ok(RawTarget::Value(v as f64))
+            }
+        }
+        d.deserialize_any(Visitor)
+    }
 }
 
 impl RawTarget {
@@ -275,11 +305,36 @@ pub fn pitch_candidates_rad(
         .collect())
 }
 
+/// A TOML error on one line, as journald keeps it: where, the line itself, and
+/// what was wrong in an operator's words (`expected f64` is serde's).
+fn parse_message(e: &toml::de::Error, text: &str) -> String {
+    let plain = |m: &str| {
+        let m = m.trim_end().replace('\n', "; ");
+        let m = m.replace("expected f64", "expected a number");
+        ["i64", "u64", "u32", "u16", "u8", "usize"]
+            .iter()
+            .fold(m, |m, t| {
+                m.replace(&format!("expected {t}"), "expected a whole number")
+            })
+    };
+    let Some(before) = e.span().and_then(|s| text.get(..s.start)) else {
+        return plain(&e.to_string()).replace("; ", " | ");
+    };
+    let line_start = before.rfind('\n').map_or(0, |i| i + 1);
+    let line = text[line_start..].lines().next().unwrap_or("").trim();
+    format!(
+        "line {}, column {} (`{line}`): {}",
+        before.matches('\n').count() + 1,
+        before[line_start..].chars().count() + 1,
+        plain(e.message())
+    )
+}
+
 impl RawConfig {
     pub fn parse(text: &str, path: &str) -> Result<RawConfig, ConfigError> {
         toml::from_str(text).map_err(|e| ConfigError::Parse {
             path: path.to_string(),
-            message: e.to_string().trim_end().replace('\n', " | "),
+            message: parse_message(&e, text),
         })
     }
 
@@ -318,11 +373,19 @@ impl RawConfig {
         if let Some(t) = q.forward_overlap {
             p.quality.forward_overlap = t.resolve("quality.forward_overlap")?;
         }
-        if let Some(v) = q.unseen_fraction_max {
-            p.quality.unseen_fraction_max = v;
+        if let Some(t) = q.unseen_fraction_max {
+            p.quality.unseen_fraction_max = t
+                .resolve("quality.unseen_fraction_max")?
+                .unwrap_or(Quality::UNSEEN_OFF);
         }
-        if let Some(k) = q.views_per_point_min {
-            p.quality.views_per_point_min = u32::try_from(k).map_err(|_| {
+        if let Some(t) = q.views_per_point_min {
+            let k = t
+                .resolve("quality.views_per_point_min")?
+                .unwrap_or(Quality::VIEWS_OFF.into());
+            p.quality.views_per_point_min = (k.fract() == 0.0
+                && (0.0..=u32::MAX as f64).contains(&k))
+            .then_some(k as u32)
+            .ok_or_else(|| {
                 bad(
                     "quality.views_per_point_min",
                     format!("must be a whole number from 1 to 100, got {k}"),
@@ -976,6 +1039,63 @@ mod tests {
         let e = Config::from_text("[sampling]\nmodle = \"mmds\"\n", "x.toml").unwrap_err();
         let m = e.to_string();
         assert!(m.contains("modle") && m.contains("line 2"), "{m}");
+    }
+
+    /// `configs/estimator.toml`: "false takes it out of force", of every
+    /// `[quality]` key; and a value of the wrong type says what the key takes,
+    /// where, in words.
+    #[test]
+    fn every_quality_target_turns_off_and_a_wrong_type_says_what_the_key_takes() {
+        let q = Config::from_text(
+            "[quality]\nparallax_px = false\nforward_overlap = 0.8\n\
+             unseen_fraction_max = false\nviews_per_point_min = false\n",
+            "x.toml",
+        )
+        .unwrap()
+        .estimator
+        .quality;
+        assert_eq!(q.parallax_px, None);
+        assert_eq!(q.forward_overlap, Some(0.8));
+        assert_eq!(q.unseen_fraction_max, Quality::UNSEEN_OFF);
+        assert_eq!(q.views_per_point_min, Quality::VIEWS_OFF);
+        let q = Config::from_text("[quality]\nviews_per_point_min = 3\n", "x.toml")
+            .unwrap()
+            .estimator
+            .quality;
+        assert_eq!(q.views_per_point_min, 3);
+        let e = Config::from_text("[quality]\nparallax_px = \"2px\"\n", "x.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("line 2, column 15 (`parallax_px = \"2px\"`)")
+                && e.contains("a number, or false"),
+            "{e}"
+        );
+        let e = Config::from_text("[quality]\nunseen_fraction_max = true\n", "x.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("quality.unseen_fraction_max: a number, or false"),
+            "{e}"
+        );
+        let e = Config::from_text("[quality]\nviews_per_point_min = 2.5\n", "x.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains(
+                "quality.views_per_point_min: must be a whole number from 1 to 100, got 2.5"
+            ),
+            "{e}"
+        );
+        let e = Config::from_text("[sampling]\nspacing_min_m = \"5\"\n", "x.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("line 2, column 17 (`spacing_min_m = \"5\"`)")
+                && e.contains("expected a number")
+                && !e.contains("f64"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -231,6 +231,23 @@ fn quality_targets_from_the_command_line() {
     assert_eq!(out.status.code(), Some(2));
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("quality.unseen_fraction_max"), "{err}");
+    // "off" takes the two other targets out of force as it does the first two
+    // (the help and configs/estimator.toml say so): 1 for both.
+    let v = json(&roof_estimate(&[
+        "--unseen-fraction-max",
+        "off",
+        "--views-per-point-min",
+        "off",
+    ]));
+    assert_eq!(v["quality"]["targets"]["unseen_fraction_max"], 1.0);
+    assert_eq!(v["quality"]["targets"]["views_per_point_min"], 1);
+    let out = alfd(&roof_estimate(&["--views-per-point-min", "two"]));
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("--views-per-point-min two: a whole number"),
+        "{err}"
+    );
 }
 
 fn write_two_level_z16(

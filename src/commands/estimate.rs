@@ -1,7 +1,7 @@
 //! `alfd estimate`: one estimate of the permissible spacing from one depth map.
 
 use super::{bad, emit, load_config};
-use alfd::core::{Decimation, Estimator, Intrinsics, Model, Profile};
+use alfd::core::{Decimation, Estimator, Intrinsics, Model, Profile, Quality};
 use alfd::depthio::{read_depth, DepthFormat, ReadOptions};
 use alfd::report::{estimate_json, estimate_text, InputInfo};
 use anyhow::{Context, Result};
@@ -49,13 +49,13 @@ pub struct Args {
     #[arg(long)]
     forward_overlap: Option<String>,
     /// Largest fraction of an in-between view neither neighbouring capture sees,
-    /// 0.000001 to 1 (1: not in force).
+    /// 0.000001 to 1 ("off" or 1: not in force).
     #[arg(long)]
-    unseen_fraction_max: Option<f64>,
-    /// Captures every visible surface point must be in, 1 to 100 (1: seen once,
-    /// the coverage bound).
+    unseen_fraction_max: Option<String>,
+    /// Captures every visible surface point must be in, 1 to 100 ("off" or 1:
+    /// seen once, the coverage bound).
     #[arg(long)]
-    views_per_point_min: Option<u32>,
+    views_per_point_min: Option<String>,
     /// Also compute SSPA (the single slanted plane).
     #[arg(long)]
     sspa: bool,
@@ -108,11 +108,19 @@ pub fn run(a: Args) -> Result<ExitCode> {
     if let Some(v) = &a.forward_overlap {
         p.quality.forward_overlap = target("forward-overlap", v)?;
     }
-    if let Some(v) = a.unseen_fraction_max {
-        p.quality.unseen_fraction_max = v;
+    if let Some(v) = &a.unseen_fraction_max {
+        p.quality.unseen_fraction_max =
+            target("unseen-fraction-max", v)?.unwrap_or(Quality::UNSEEN_OFF);
     }
-    if let Some(v) = a.views_per_point_min {
-        p.quality.views_per_point_min = v;
+    if let Some(v) = &a.views_per_point_min {
+        p.quality.views_per_point_min = match v.as_str() {
+            "off" => Quality::VIEWS_OFF,
+            v => v.parse().map_err(|_| {
+                bad(format!(
+                    "--views-per-point-min {v}: a whole number from 1 to 100, or off"
+                ))
+            })?,
+        };
     }
     p.with_sspa |= a.sspa;
     if let Some(d) = &a.decimation {

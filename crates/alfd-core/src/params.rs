@@ -112,6 +112,13 @@ impl Default for Quality {
     }
 }
 
+impl Quality {
+    /// `unseen_fraction_max` not in force: every view may go unseen.
+    pub const UNSEEN_OFF: f64 = 1.0;
+    /// `views_per_point_min` not in force: seen once, the coverage bound.
+    pub const VIEWS_OFF: u32 = 1;
+}
+
 /// The disparity gain an occlusion edge's contrast is multiplied by.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum GainModel {
@@ -381,7 +388,7 @@ impl EstimatorParams {
             "quality.unseen_fraction_max",
             || {
                 format!(
-                    "must be in [0.000001, 1] (1 turns it off), got {}",
+                    "must be in [0.000001, 1] (1, or false, turns it off), got {}",
                     q.unseen_fraction_max
                 )
             },
