@@ -136,8 +136,12 @@ fn axis_pitch(poses: &[TruthPose], k: usize, track_axis: TrackAxis) -> (TrackAxi
 /// the flight on simulated time keeps one core busy (its runtime is a single
 /// thread), and this takes only what the cores have to spare (`SCHED_IDLE`). Poses go in as the
 /// daemon's frames come; [`TruthStream::finish`] estimates what is left on
-/// every core and returns the same samples as [`truth_estimates`] over the
-/// same poses.
+/// the caller's thread and every core and returns the same samples as
+/// [`truth_estimates`] over the same poses. What is left is taken back from the
+/// worker, not waited for: once the flight is over the process waits on it, and
+/// at `SCHED_IDLE` any other load on the machine (an `alfd eval` beside the
+/// flight) starved it, 57 s between an interrupt and the summary where an idle
+/// machine takes 2.
 ///
 /// The queue holds poses (a few dozen bytes each, the depth is rendered on the
 /// worker) and is bounded at `STREAM_QUEUE`: when full, [`TruthStream::push`]
@@ -147,8 +151,29 @@ pub struct TruthStream {
     tx: Option<std::sync::mpsc::SyncSender<(TruthPose, Option<Vec<f32>>)>>,
     /// Depth maps given with poses and not yet taken by the worker.
     given: Arc<AtomicUsize>,
-    worker: Option<std::thread::JoinHandle<TruthStreamResult>>,
+    /// Set by [`TruthStream::finish`]: the worker hands back what it has not
+    /// estimated instead of going on.
+    over: Arc<Over>,
+    worker: Option<std::thread::JoinHandle<WorkerState>>,
+    scene: Arc<Scene>,
+    intrinsics: Intrinsics,
+    params: EstimatorParams,
 }
+
+/// The flight is over (`true`), and a condition a held worker waits on.
+type Over = (std::sync::Mutex<bool>, std::sync::Condvar);
+
+/// What the worker hands back: the poses and depth maps it was given, its
+/// samples so far, and the estimator whose state the rest continues.
+type WorkerState = (
+    Vec<TruthPose>,
+    Vec<Option<Vec<f32>>>,
+    Vec<TrackSample>,
+    Estimator,
+);
+
+/// Poses the worker estimates between two looks at whether the flight is over.
+const WORKER_BATCH: usize = 8;
 
 /// Depth maps ([`TruthStream::push`]) queued at most (about 1.2 MB each at
 /// 640 × 480); beyond, poses go without theirs and the worker renders them.
@@ -169,7 +194,20 @@ impl TruthStream {
         intrinsics: Intrinsics,
         params: EstimatorParams,
     ) -> Option<TruthStream> {
+        Self::spawn_held(scene, intrinsics, params, false)
+    }
+
+    /// [`TruthStream::spawn`]; `held`: the worker estimates nothing before
+    /// [`TruthStream::finish`] (a starved worker, for the tests).
+    fn spawn_held(
+        scene: Arc<Scene>,
+        intrinsics: Intrinsics,
+        params: EstimatorParams,
+        held: bool,
+    ) -> Option<TruthStream> {
         let params = per_frame(&params);
+        let over: Arc<Over> = Arc::default();
+        let (over_w, scene_w, params_w) = (over.clone(), scene.clone(), params.clone());
         let (tx, rx) = std::sync::mpsc::sync_channel::<(TruthPose, Option<Vec<f32>>)>(STREAM_QUEUE);
         let given = Arc::new(AtomicUsize::new(0));
         let taken = given.clone();
@@ -183,50 +221,72 @@ impl TruthStream {
             .name("alfd-truth".into())
             .spawn(move || {
                 idle_this_thread();
+                let (scene, params, over) = (scene_w, params_w, over_w);
+                let is_over = || *over.0.lock().unwrap_or_else(|e| e.into_inner());
+                if held {
+                    let mut done = over.0.lock().unwrap_or_else(|e| e.into_inner());
+                    while !*done {
+                        done = over.1.wait(done).unwrap_or_else(|e| e.into_inner());
+                    }
+                }
                 let mut poses: Vec<TruthPose> = Vec::new();
                 let mut rendered: Vec<Option<Vec<f32>>> = Vec::new();
                 let mut out: Vec<TrackSample> = Vec::new();
                 let mut estimator = Estimator::new(params.clone());
-                // The poses from the first not yet estimated up to `end`.
-                let estimate_to = |end: usize,
-                                   track: (&[TruthPose], &mut [Option<Vec<f32>>]),
-                                   estimator: &mut Estimator,
-                                   out: &mut Vec<TrackSample>| {
-                    let range = out.len()..end;
-                    estimate_range(&scene, intrinsics, &params, track, range, estimator, out)
+                let take = |(p, depth): (TruthPose, Option<Vec<f32>>),
+                            poses: &mut Vec<TruthPose>,
+                            rendered: &mut Vec<Option<Vec<f32>>>| {
+                    if depth.is_some() {
+                        taken.fetch_sub(1, Ordering::AcqRel);
+                    }
+                    poses.push(p);
+                    rendered.push(depth);
                 };
                 // While the flight runs: each pose once its successor is known
                 // (its flight axis needs both neighbours), on the worker's own
-                // thread so the flight's renders keep rayon's pool.
+                // thread so the flight's renders keep rayon's pool, a few at a
+                // time so that the end of the flight is seen soon.
                 while let Ok(first) = rx.recv() {
-                    for (p, depth) in std::iter::once(first).chain(rx.try_iter()) {
-                        if depth.is_some() {
-                            taken.fetch_sub(1, Ordering::AcqRel);
-                        }
-                        poses.push(p);
-                        rendered.push(depth);
+                    for item in std::iter::once(first).chain(rx.try_iter()) {
+                        take(item, &mut poses, &mut rendered);
                     }
                     let ready = poses.len() - 1;
-                    if ready > out.len() {
+                    while out.len() < ready && !is_over() {
+                        let end = (out.len() + WORKER_BATCH).min(ready);
                         pool.install(|| {
-                            estimate_to(ready, (&poses, &mut rendered), &mut estimator, &mut out)
+                            let range = out.len()..end;
+                            let track = (&poses[..], &mut rendered[..]);
+                            estimate_range(
+                                &scene,
+                                intrinsics,
+                                &params,
+                                track,
+                                range,
+                                &mut estimator,
+                                &mut out,
+                            )
                         });
                     }
+                    if is_over() {
+                        break;
+                    }
                 }
-                // The flight is over: the rest on every core.
-                estimate_to(
-                    poses.len(),
-                    (&poses, &mut rendered),
-                    &mut estimator,
-                    &mut out,
-                );
-                (poses, out)
+                // The flight is over: the rest is the caller's. Its sender is
+                // gone, so this ends with what was queued.
+                for item in rx.iter() {
+                    take(item, &mut poses, &mut rendered);
+                }
+                (poses, rendered, out, estimator)
             })
             .ok()?;
         Some(TruthStream {
             tx: Some(tx),
             given,
+            over,
             worker: Some(worker),
+            scene,
+            intrinsics,
+            params,
         })
     }
 
@@ -249,11 +309,33 @@ impl TruthStream {
         tx.send((pose, depth_m)).ok();
     }
 
-    /// Estimates what is left and returns the poses given and their samples;
-    /// `None` if the worker panicked.
-    pub fn finish(mut self) -> Option<TruthStreamResult> {
+    /// Estimates what is left, on this thread and rayon's pool, and returns
+    /// the poses given and their samples; `None` if the worker panicked.
+    pub fn finish(self) -> Option<TruthStreamResult> {
+        self.finish_counted().map(|(result, _)| result)
+    }
+
+    /// [`TruthStream::finish`], and how many poses were left to it.
+    fn finish_counted(mut self) -> Option<(TruthStreamResult, usize)> {
+        *self.over.0.lock().unwrap_or_else(|e| e.into_inner()) = true;
+        self.over.1.notify_all();
         drop(self.tx.take());
-        self.worker.take()?.join().ok()
+        let (poses, mut rendered, mut out, mut estimator) = self.worker.take()?.join().ok()?;
+        let left = poses.len() - out.len();
+        if left > CHUNK {
+            tracing::info!("judging the flight's last {left} frames against the truth");
+        }
+        let range = out.len()..poses.len();
+        estimate_range(
+            &self.scene,
+            self.intrinsics,
+            &self.params,
+            (&poses, &mut rendered),
+            range,
+            &mut estimator,
+            &mut out,
+        );
+        Some(((poses, out), left))
     }
 }
 
@@ -425,6 +507,37 @@ texture = { colour = [0.7, 0.6, 0.6], contrast = 0.3, seed = 2 }
         // A stream given nothing gives nothing.
         let stream = TruthStream::spawn(scene, intr, EstimatorParams::default()).unwrap();
         assert_eq!(stream.finish(), Some((Vec::new(), Vec::new())));
+    }
+
+    /// A worker starved until the flight ends (`SCHED_IDLE` beside another
+    /// load) leaves every pose to `finish`, which estimates them on the
+    /// caller's thread: the batch's samples, in order, estimator state included.
+    #[test]
+    fn a_starved_worker_hands_its_poses_back_to_finish() {
+        let scene = Arc::new(Scene::parse(SCENE, "inline").expect("the inline scene parses"));
+        let intr = Intrinsics::from_hfov_deg(64, 48, 69.0, None).unwrap();
+        let poses = poses(intr);
+        for params in [
+            EstimatorParams::default(),
+            EstimatorParams {
+                decimation: Decimation::auto(),
+                ..EstimatorParams::default()
+            },
+        ] {
+            let batch = truth_estimates(&scene, intr, &params, &poses);
+            let stream = TruthStream::spawn_held(scene.clone(), intr, params.clone(), true)
+                .expect("a thread for the stream");
+            for (k, p) in poses.iter().enumerate() {
+                stream.push(
+                    *p,
+                    (k % 3 == 0).then(|| render_depth(&scene, &camera(p, intr))),
+                );
+            }
+            let ((given, streamed), left) = stream.finish_counted().expect("the worker finishes");
+            assert_eq!(left, poses.len());
+            assert_eq!(given, poses);
+            assert_eq!(streamed, batch, "{:?}", params.decimation);
+        }
     }
 
     #[test]
