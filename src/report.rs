@@ -3,7 +3,7 @@
 
 use crate::capture::QualityRecord;
 use crate::core::estimate::{DecimationChoice, NoEstimate};
-use crate::core::{Estimate, EstimatorParams};
+use crate::core::{Estimate, EstimatorParams, Quality};
 use serde_json::{json, Value};
 
 /// A quantity for JSON: finite non-negative values pass, anything else is null.
@@ -134,8 +134,32 @@ pub fn estimate_json(
     })
 }
 
+/// The targets in force, as `alfd estimate` and `alfd sim` print them (the
+/// summary has them from the manifest's record, not a [`Quality`]).
+pub fn targets_text(
+    parallax_px: Option<f64>,
+    forward_overlap: Option<f64>,
+    unseen_fraction_max: f64,
+    views_per_point_min: u32,
+) -> String {
+    let opt = |x: Option<f64>, unit: &str| x.map_or("off".to_string(), |v| format!("{v}{unit}"));
+    format!(
+        "parallax {}, forward overlap {}, unseen {}, views >= {}",
+        opt(parallax_px, " px"),
+        opt(forward_overlap, ""),
+        match unseen_fraction_max {
+            Quality::UNSEEN_OFF => "off".to_string(),
+            v => format!("<= {v}"),
+        },
+        views_per_point_min
+    )
+}
+
 fn fmt_m(x: Option<f64>) -> String {
     match x {
+        // Far beyond any depth camera (a PFM in other units, a bad scale):
+        // thirty digits of a float's noise would say nothing more.
+        Some(v) if v >= 1e5 => format!("{v:.3e} m"),
         Some(v) if v >= 100.0 => format!("{v:.1} m"),
         Some(v) if v >= 0.01 => format!("{v:.3} m"),
         Some(v) => format!("{v:.3e} m"),
@@ -207,16 +231,16 @@ pub fn estimate_text(
     let sp = &e.spacing;
     if let Some(q) = e.quality {
         let t = q.targets;
-        let opt =
-            |x: Option<f64>, unit: &str| x.map_or("off".to_string(), |v| format!("{v}{unit}"));
         let _ = writeln!(
             s,
-            "targets        {} profile: parallax {}, forward overlap {}, unseen <= {}, views >= {}",
+            "targets        {} profile: {}",
             t.profile.as_str(),
-            opt(t.parallax_px, " px"),
-            opt(t.forward_overlap, ""),
-            t.unseen_fraction_max,
-            t.views_per_point_min
+            targets_text(
+                t.parallax_px,
+                t.forward_overlap,
+                t.unseen_fraction_max,
+                t.views_per_point_min
+            )
         );
         if let Some(v) = e.visibility {
             let _ = writeln!(
@@ -237,41 +261,54 @@ pub fn estimate_text(
                 }
             );
         }
-        let row = |name: &str, on: bool, m: Option<f64>, at: String| {
+        // A row without a figure says why: the target is not in force, or it
+        // is and this frame gave it nothing to bound (which `terms` leaves out).
+        let row = |name: &str, on: bool, in_force: bool, m: Option<f64>, at: String| {
             if on {
                 format!(
                     "spacing  {name:<16}{:<12} predicted at chosen: {at}\n",
                     fmt_m(m)
                 )
+            } else if !in_force {
+                format!("spacing  {name:<16}off (not in force)\n")
+            } else if e.inv_depth.is_none() {
+                format!("spacing  {name:<16}left out: no surface in view\n")
             } else {
-                format!("spacing  {name:<16}off\n")
+                format!("spacing  {name:<16}left out: nothing occludes\n")
             }
         };
         let pv = |x: Option<f64>, f: &dyn Fn(f64) -> String| x.map_or("n/a".into(), f);
         s.push_str(&row(
             "parallax",
             e.terms.parallax,
+            t.parallax_px.is_some(),
             sp.parallax_m,
             pv(q.parallax_px, &|v| format!("{v:.2} px")),
         ));
         s.push_str(&row(
             "forward_overlap",
             e.terms.forward_overlap,
+            t.forward_overlap.is_some(),
             sp.forward_overlap_m,
             pv(q.forward_overlap, &|v| format!("{:.1} %", 100.0 * v)),
         ));
         s.push_str(&row(
             "unseen_fraction",
             e.terms.visibility,
+            t.unseen_fraction_max < Quality::UNSEEN_OFF,
             sp.unseen_m,
             pv(q.unseen_fraction, &|v| format!("{v:.5}")),
         ));
         s.push_str(&row(
             "views_per_point",
             e.terms.views,
+            true,
             sp.views_m,
-            q.views_per_point
-                .map_or("n/a".into(), |k| format!("{k} views")),
+            // The count saturates where nothing bounds it (depth at infinity).
+            q.views_per_point.map_or("n/a".into(), |k| match k {
+                u32::MAX => "unbounded".into(),
+                k => format!("{k} views"),
+            }),
         ));
     }
     let _ = writeln!(s, "spacing  mmds      {}", fmt_m(sp.mmds_m));

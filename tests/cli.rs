@@ -241,6 +241,53 @@ fn quality_targets_from_the_command_line() {
     ]));
     assert_eq!(v["quality"]["targets"]["unseen_fraction_max"], 1.0);
     assert_eq!(v["quality"]["targets"]["views_per_point_min"], 1);
+    // A target out of force bounds nothing: the unseen term is not among the
+    // terms used although the roof occludes, and the text says which rows are
+    // off and which were left out by the frame.
+    let terms: Vec<&str> = v["terms"]
+        .as_array()
+        .expect("terms")
+        .iter()
+        .filter_map(|t| t.as_str())
+        .collect();
+    assert!(
+        !terms.contains(&"visibility") && terms.contains(&"views"),
+        "{terms:?}"
+    );
+    let out = alfd(&roof_estimate(&["--unseen-fraction-max", "off"]));
+    let s = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        s.contains("forward overlap off, unseen off, views >= 2"),
+        "{s}"
+    );
+    assert!(
+        s.contains("spacing  unseen_fraction off (not in force)\n"),
+        "{s}"
+    );
+    let out = alfd(&[
+        "estimate",
+        "--depth",
+        "tests/data/roof_160x120.z16",
+        "--width",
+        "160",
+        "--height",
+        "120",
+        "--hfov-deg",
+        "69",
+        "--depth-scale-m",
+        "1e30",
+    ]);
+    let s = String::from_utf8_lossy(&out.stdout);
+    // Depth far beyond any camera: a float's digits are not printed as a
+    // measurement, and a count that saturates is not given as a count.
+    assert!(s.contains("depth range    2.000e34 m to 4.000e34 m"), "{s}");
+    assert!(s.contains("predicted at chosen: unbounded"), "{s}");
+    let out = alfd(&roof_estimate(&[]));
+    let s = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        s.contains("spacing  forward_overlap off (not in force)\n"),
+        "{s}"
+    );
     let out = alfd(&roof_estimate(&["--views-per-point-min", "two"]));
     assert_eq!(out.status.code(), Some(2));
     let err = String::from_utf8_lossy(&out.stderr);

@@ -496,17 +496,13 @@ impl Summary {
         ]
         .into_iter()
         .chain(self.quality_targets.as_ref().map(|t| {
-            let opt =
-                |x: Option<f64>, unit: &str| x.map_or("off".to_string(), |v| format!("{v}{unit}"));
-            format!(
-                "{:<16}{}: parallax {}, forward overlap {}, unseen <= {}, views >= {}",
-                "targets",
-                t.profile,
-                opt(t.parallax_px, " px"),
-                opt(t.forward_overlap, ""),
+            let targets = crate::report::targets_text(
+                t.parallax_px,
+                t.forward_overlap,
                 t.unseen_fraction_max,
-                t.views_per_point_min
-            )
+                t.views_per_point_min,
+            );
+            format!("{:<16}{}: {targets}", "targets", t.profile)
         }))
         .chain((!self.captures_by_bound.is_empty()).then(|| {
             let mut v: Vec<(&String, &usize)> = self.captures_by_bound.iter().collect();

@@ -716,8 +716,9 @@ impl Estimator {
                 est.spacing.views_m = v.spacing_views_m;
             }
             // No occluder on any line: the unseen fraction is 0 at every
-            // spacing the footprint allows, so the term is left out.
-            if v.has_occluders() {
+            // spacing the footprint allows, so the term is left out; and
+            // with the target not in force it bounds nothing either.
+            if v.has_occluders() && p.quality.unseen_fraction_max < Quality::UNSEEN_OFF {
                 est.terms.visibility = true;
                 est.spacing.unseen_m = v.spacing_unseen_m;
             }
