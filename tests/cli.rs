@@ -629,6 +629,25 @@ fn tradeoff_refuses_what_it_cannot_measure_by_name() {
         &["tradeoff", "--depth", "tests/data/roof_160x120.z16"],
         &["--depth", "roof_160x120.z16", "16-bit PNG or a PFM"],
     );
+    rejects(
+        &["tradeoff", "--repeats", "5000"],
+        &["--repeats 5000", "1 to 1000"],
+    );
+    // A map past the estimator's pitch has no estimate at any level: its
+    // column read 0 % error everywhere.
+    rejects(
+        &[
+            "tradeoff",
+            "--depth",
+            "tests/data/buildings_320x240.png",
+            "--pitch-deg",
+            "85",
+        ],
+        &[
+            "--depth tests/data/buildings_320x240.png: no estimate at full resolution",
+            "pitch 85.0 deg is beyond estimator.pitch_max_deg",
+        ],
+    );
 }
 
 /// `alfd eval` refuses, before its first scene, what would fail only after

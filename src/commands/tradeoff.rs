@@ -1,7 +1,7 @@
 //! `alfd tradeoff`: error against run time of every decimation level and model.
 
 use super::{bad, emit, frame_size, load_config};
-use alfd::core::{Intrinsics, Model};
+use alfd::core::{Estimator, Intrinsics, Model};
 use alfd::depthio::{read_depth, DepthFormat, ReadOptions};
 use alfd::tradeoff;
 use anyhow::Result;
@@ -36,8 +36,11 @@ pub struct Args {
 pub fn run(a: Args) -> Result<ExitCode> {
     let cfg = load_config(&a.config)?;
     frame_size(a.width, a.height)?;
-    if a.repeats == 0 {
-        return Err(bad("--repeats 0: time each frame at least once"));
+    if !(1..=1000).contains(&a.repeats) {
+        return Err(bad(format!(
+            "--repeats {}: time each frame 1 to 1000 times (each is a full table's worth of estimates)",
+            a.repeats
+        )));
     }
     // Checked whether or not a --depth map uses them: a bad value is a typo
     // the user should hear about, not one that waits for the next map.
@@ -50,6 +53,12 @@ pub fn run(a: Args) -> Result<ExitCode> {
         )));
     }
     let mut frames = tradeoff::reference_frames(a.width, a.height, 69.0);
+    let mut described = format!(
+        "{} reference frames of {}x{}",
+        frames.len(),
+        a.width,
+        a.height
+    );
     for path in &a.depth {
         let format = DepthFormat::from_path(path);
         // The reader's own answer would send the user to --width/--height,
@@ -68,6 +77,25 @@ pub fn run(a: Args) -> Result<ExitCode> {
         let image = read_depth(path, &opts).map_err(|e| bad(e.to_string()))?;
         let intrinsics = Intrinsics::from_hfov_deg(image.width(), image.height(), a.hfov_deg, None)
             .map_err(|e| bad(format!("--hfov-deg: {e}")))?;
+        // A map with no estimate at full resolution has none at any level
+        // either, and the tables would read 0 % error for it.
+        let mut estimator = Estimator::new(cfg.estimator.clone());
+        let e = estimator
+            .estimate_at(&image, &intrinsics, a.pitch_deg.to_radians(), 1)
+            .map_err(|e| bad(format!("--depth {}: {e}", path.display())))?;
+        if let Some(why) = e.no_estimate {
+            return Err(bad(format!(
+                "--depth {}: no estimate at full resolution, so no error to measure: {}",
+                path.display(),
+                alfd::report::no_estimate_reason(why, &e, &cfg.estimator)
+            )));
+        }
+        described.push_str(&format!(
+            ", {} ({}x{})",
+            path.display(),
+            image.width(),
+            image.height()
+        ));
         frames.push(tradeoff::Frame {
             name: path
                 .file_name()
@@ -87,10 +115,7 @@ pub fn run(a: Args) -> Result<ExitCode> {
     );
     emit(&format!(
         "Spacing error of each decimation level against full resolution, and time per frame \
-         ({} frames of {}x{}, median of {} runs; score left out).\n\n{}",
-        frames.len(),
-        a.width,
-        a.height,
+         ({described}, median of {} runs; score left out).\n\n{}",
         a.repeats,
         tradeoff::markdown(&frames, &rows)
     ))?;
