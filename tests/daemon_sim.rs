@@ -9,6 +9,7 @@ mod tools;
 
 use alfd::capture::{parse_exif_gps, read_manifest, tlog, CaptureMode, CaptureRecord};
 use alfd::core::attitude::body_to_ned;
+use alfd::core::Model;
 use alfd::daemon::sim::{
     run_sim_on_simulated_time, SimArgs, SimHooks, SimOutcome, SIMULATED_START_UNIX_US,
 };
@@ -568,4 +569,52 @@ fn a_scene_is_flown_at_its_own_speed() {
         (b.position.north_m - a.position.north_m).hypot(b.position.east_m - a.position.east_m);
     let speed_mps = way_m / ((b.mono_ns - a.mono_ns) as f64 * 1e-9);
     assert!((speed_mps - 5.0).abs() < 0.5, "flown at {speed_mps:.2} m/s");
+}
+
+/// Another model flies judged by the operator's targets, not by itself: the
+/// truth estimated every flight with the flown model, so `--model fixed` met
+/// "0 avoidable violations" at any spacing (the fixed model on exact depth
+/// allows what it flew), a flight that holds none of the targets.
+#[test]
+fn a_flight_of_another_model_is_judged_by_the_targets() {
+    let dir = tempfile::tempdir().unwrap();
+    let fly = |model: Option<Model>, out: &str| {
+        let a = SimArgs {
+            model,
+            ..args(&dir.path().join(out), CaptureMode::Frame)
+        };
+        run_sim_on_simulated_time(a, SimHooks::default(), std::future::pending())
+            .expect("the sim runs")
+    };
+    let quality = fly(None, "quality");
+    let fixed = fly(Some(Model::Fixed), "fixed");
+    // The tower scene's line at the fixed model's 5 m: past the targets'
+    // spacing over the tower, and the truth says so.
+    assert!(
+        fixed.summary.avoidable_violations > 0,
+        "{:?}",
+        fixed.summary
+    );
+    let judged = fixed
+        .summary
+        .judged_by
+        .as_deref()
+        .expect("a judged-by line");
+    assert!(
+        judged.starts_with("the lightfield targets (parallax 2 px")
+            && judged.ends_with("the fixed model flew"),
+        "{judged}"
+    );
+    assert!(fixed
+        .summary
+        .render_text()
+        .contains("judged by       the lightfield targets"));
+    // One judge for both flights: the same truth, so the same ideal and the
+    // same fixed baseline to compare their captures with.
+    assert_eq!(quality.summary.judged_by, None);
+    assert_eq!(
+        quality.summary.fixed_spacing_m,
+        fixed.summary.fixed_spacing_m
+    );
+    assert_eq!(quality.summary.avoidable_violations, 0);
 }

@@ -7,7 +7,7 @@ use super::devices::{intrinsics, scene_camera_pose};
 use super::run::{run, Devices, FrameSample, Frames, RunError, RunOptions, RunReport, SampleHook};
 use crate::capture::CaptureMode;
 use crate::config::{Config, SimPose};
-use crate::core::{Intrinsics, Model, Profile};
+use crate::core::{EstimatorParams, Intrinsics, Model, Profile};
 use crate::link::{mono_ns, LinkHandle};
 use crate::notify::Notifier;
 use crate::render::SensorModel;
@@ -662,8 +662,9 @@ pub async fn run_sim_with(
     });
     // The truth track, estimated beside the flight from the true pose at each
     // frame the daemon processes (the same poses as after it: `truth_track`).
+    let judge = judge_params(&config.estimator);
     let truth_stream =
-        simreport::TruthStream::spawn(scene.clone(), intr, config.estimator.clone()).map(Arc::new);
+        simreport::TruthStream::spawn(scene.clone(), intr, judge.clone()).map(Arc::new);
     let mut feed = truth_stream.clone().map(|stream| {
         let sim = sim.clone();
         let mut tracker = TruthTracker::new(scene.clone(), intr, mount);
@@ -775,7 +776,7 @@ pub async fn run_sim_with(
     };
     let truth = streamed.unwrap_or_else(|why| {
         tracing::warn!("truth track not streamed ({why}): estimated after the flight");
-        simreport::truth_estimates(&scene, intr, &config.estimator, &poses)
+        simreport::truth_estimates(&scene, intr, &judge, &poses)
     });
     let captures = capture_positions(&report, &poses, &truth_at);
     let summary = simreport::summarize(
@@ -784,7 +785,8 @@ pub async fn run_sim_with(
         config.trigger.fallback_spacing_m,
         opportunity_step_m(&args, speed_mps),
     )
-    .with_records(&report.records);
+    .with_records(&report.records)
+    .judged_by(judged_by(&config.estimator, &judge));
     let plots = simreport::plots(&truth, &daemon, &captures, &flight_dir)
         .map_err(|e| setup(format!("plots: {e}")))?;
     let mut track = String::new();
@@ -839,6 +841,44 @@ pub async fn run_sim_with(
         sim_events_lost,
         sim_stats,
         sweep,
+    })
+}
+
+/// What the truth judges a flight by: the quality model at the config's
+/// targets, whatever model flies. Judged by its own model on exact depth, a
+/// fixed or MMDS flight meets it by construction (`--model fixed` had 0
+/// violations at any spacing), which says nothing of the promise the
+/// operator set. Targets that leave the quality model nothing to bound
+/// (parallax and forward overlap both off) give the default profile's.
+pub(crate) fn judge_params(flown: &EstimatorParams) -> EstimatorParams {
+    let judge = EstimatorParams {
+        model: Model::Quality,
+        ..flown.clone()
+    };
+    if judge.validate().is_ok() {
+        return judge;
+    }
+    EstimatorParams {
+        quality: Profile::default().targets(),
+        ..judge
+    }
+}
+
+/// The summary's `judged by` line for a flight of another model than the judge's.
+fn judged_by(flown: &EstimatorParams, judge: &EstimatorParams) -> Option<String> {
+    (flown.model != judge.model).then(|| {
+        let t = &judge.quality;
+        format!(
+            "the {} targets ({}), by the quality model on the truth's depth; the {} model flew",
+            t.profile.as_str(),
+            crate::report::targets_text(
+                t.parallax_px,
+                t.forward_overlap,
+                t.unseen_fraction_max,
+                t.views_per_point_min
+            ),
+            flown.model.as_str()
+        )
     })
 }
 

@@ -95,6 +95,10 @@ pub struct Summary {
     pub captures_by_term: BTreeMap<String, usize>,
     /// The quality targets in force (the quality model only).
     pub quality_targets: Option<QualityTargets>,
+    /// What the truth judged a flight of another model by (the quality
+    /// model's targets), in words; `None` for a quality flight, whose
+    /// `targets` say it.
+    pub judged_by: Option<String>,
 }
 
 /// One opportunity: a distinct position and the smallest spacing in force there.
@@ -288,6 +292,7 @@ pub fn summarize(
         captures_by_bound: BTreeMap::new(),
         captures_by_term: BTreeMap::new(),
         quality_targets: None,
+        judged_by: None,
     };
 
     for w in caps.windows(2) {
@@ -414,6 +419,12 @@ impl Summary {
         self
     }
 
+    /// Sets what the truth judged the flight by ([`Summary::judged_by`]).
+    pub fn judged_by(mut self, judged_by: Option<String>) -> Summary {
+        self.judged_by = judged_by;
+        self
+    }
+
     /// The targets in force that set no capture's spacing, with why not in
     /// words an operator can act on.
     pub fn never_bound(&self) -> Vec<String> {
@@ -495,6 +506,11 @@ impl Summary {
             format!("{:<16}{range}", "spacing"),
         ]
         .into_iter()
+        .chain(
+            self.judged_by
+                .as_ref()
+                .map(|j| format!("{:<16}{j}", "judged by")),
+        )
         .chain(self.quality_targets.as_ref().map(|t| {
             let targets = crate::report::targets_text(
                 t.parallax_px,
