@@ -311,11 +311,21 @@ fn parse_message(e: &toml::de::Error, text: &str) -> String {
     let plain = |m: &str| {
         let m = m.trim_end().replace('\n', "; ");
         let m = m.replace("expected f64", "expected a number");
-        ["i64", "u64", "u32", "u16", "u8", "usize"]
-            .iter()
-            .fold(m, |m, t| {
-                m.replace(&format!("expected {t}"), "expected a whole number")
-            })
+        [
+            ("u8", " from 0 to 255"),
+            ("u16", " from 0 to 65535"),
+            ("u32", " from 0 to 4294967295"),
+            ("i64", ""),
+            ("u64", " from 0"),
+            ("usize", " from 0"),
+        ]
+        .iter()
+        .fold(m, |m, (t, range)| {
+            m.replace(
+                &format!("expected {t}"),
+                &format!("expected a whole number{range}"),
+            )
+        })
     };
     let Some(before) = e.span().and_then(|s| text.get(..s.start)) else {
         return plain(&e.to_string()).replace("; ", " | ");
@@ -1096,6 +1106,11 @@ mod tests {
                 && !e.contains("f64"),
             "{e}"
         );
+        // A whole number out of its type's range is not "not a whole number".
+        let e = Config::from_text("[mavlink]\nsystem_id = 300\n", "x.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("expected a whole number from 0 to 255"), "{e}");
     }
 
     #[test]

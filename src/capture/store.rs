@@ -220,8 +220,12 @@ impl DirStore {
             Ok(()) => {}
             Err(rustix::io::Errno::WOULDBLOCK) => return Err(StoreError::InUse { path: dir }),
             // A filesystem without locks still takes captures: the lock is a guard
-            // against a second writer, not a condition of writing.
-            Err(_) => {}
+            // against a second writer, not a condition of writing; but the
+            // operator hears that the guard is off.
+            Err(e) => tracing::warn!(
+                "{}: the filesystem takes no lock ({e}): a second alfd, or alfd export, on this flight would not be refused",
+                dir.display()
+            ),
         }
         let entries = fs::read_dir(&dir).map_err(|e| io_error(&dir, e))?;
         for entry in entries {
