@@ -905,6 +905,28 @@ impl RawConfig {
         };
         let estimator_threads =
             whole_in("estimator.threads", self.estimator.threads, 1, 1..=64)? as usize;
+        // A stride that leaves the depth frame a handful of samples gives a
+        // spacing from the extremes of those (at 256, one sample of a 320 × 240
+        // frame: 63× the full frame's), on every frame of the flight.
+        if let (Decimation::Fixed(n), SourceKind::Synthetic | SourceKind::V4l2) =
+            (&estimator.decimation, depth.kind())
+        {
+            let min = estimator.grid_samples_min();
+            let samples = crate::core::inverse::grid_samples(depth.width, depth.height, *n);
+            if samples < min {
+                return Err((
+                    "estimator.decimation".into(),
+                    format!(
+                        "{n} leaves {samples} samples of the {}x{} depth frame, fewer than the {min} \
+                         its {} % percentile needs: at most {} for this frame",
+                        depth.width,
+                        depth.height,
+                        100.0 * estimator.percentile_low,
+                        crate::core::inverse::coarsest_step(depth.width, depth.height, min)
+                    ),
+                ));
+            }
+        }
         let t = &self.trigger;
         let defaults = TriggerParams::default();
         let trigger = TriggerParams {
@@ -1334,6 +1356,19 @@ mod tests {
             let e = Config::from_text(text, "x.toml").unwrap_err().to_string();
             assert!(e.contains(field), "{text:?}: {e}");
         }
+        // A stride that leaves the depth frame fewer samples than its robust
+        // range needs: 640 / 128 × 480 / 128 = 15; 37 is the coarsest with 200.
+        let depth =
+            "[depth]\nsource = \"v4l2\"\ndevice_serial = \"1\"\nwidth = 640\nheight = 480\n";
+        let e = Config::from_text(&format!("{depth}[estimator]\ndecimation = 128\n"), "x.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("estimator.decimation: 128 leaves 15 samples of the 640x480 depth frame")
+                && e.contains("at most 37 for this frame"),
+            "{e}"
+        );
+        Config::from_text(&format!("{depth}[estimator]\ndecimation = 37\n"), "x.toml").unwrap();
         // The default fallback (1 m) is no looser than a shorter cap.
         let c = Config::from_text("[sampling]\nspacing_max_m = 0.5\n", "x.toml").unwrap();
         assert_eq!(c.trigger.fallback_spacing_m, 0.5);

@@ -368,6 +368,18 @@ pub fn estimate_text(
             let _ = writeln!(s, "decimation     {}", e.decimation);
         }
     }
+    let min = params.grid_samples_min();
+    if e.samples < min {
+        let _ = writeln!(
+            s,
+            "               {} samples of the frame at decimation {}, fewer than the {min} its {} % percentile needs: \
+             the depth range is the extremes of a few samples (decimation {} at most for this frame)",
+            e.samples,
+            e.decimation,
+            100.0 * params.percentile_low,
+            crate::core::inverse::coarsest_step(input.width, input.height, min)
+        );
+    }
     let _ = writeln!(s, "elapsed        {elapsed_us} us");
     s
 }

@@ -288,6 +288,17 @@ fn quality_targets_from_the_command_line() {
         s.contains("spacing  forward_overlap off (not in force)\n"),
         "{s}"
     );
+    // A stride that leaves the frame one sample: the spacing rests on it, and
+    // the text says so with the coarsest stride that keeps 200 (160/9 × 120/9).
+    let out = alfd(&roof_estimate(&["--decimation", "256"]));
+    let s = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        s.contains("1 samples of the frame at decimation 256, fewer than the 200 its 0.5 % percentile needs")
+            && s.contains("(decimation 9 at most for this frame)"),
+        "{s}"
+    );
+    let out = alfd(&roof_estimate(&["--decimation", "9"]));
+    assert!(!String::from_utf8_lossy(&out.stdout).contains("percentile needs"));
     let out = alfd(&roof_estimate(&["--views-per-point-min", "two"]));
     assert_eq!(out.status.code(), Some(2));
     let err = String::from_utf8_lossy(&out.stderr);

@@ -154,6 +154,22 @@ fn nth_from_top(hist: &[u32], mut rank: u64) -> usize {
 }
 
 /// Sample indices for a stride `step` over `extent` pixels: the centre of each block.
+/// Samples of a `width × height` frame's grid at `step` ([`sample_indices`]
+/// both ways).
+pub fn grid_samples(width: usize, height: usize, step: usize) -> usize {
+    let n = |extent: usize| (extent / step.max(1)).max(1);
+    n(width) * n(height)
+}
+
+/// The coarsest step, 1 to 256, whose grid of a `width × height` frame keeps
+/// at least `min` samples (1 when none does).
+pub fn coarsest_step(width: usize, height: usize, min: usize) -> usize {
+    (1..=256)
+        .rev()
+        .find(|&s| grid_samples(width, height, s) >= min)
+        .unwrap_or(1)
+}
+
 pub fn sample_indices(extent: usize, step: usize) -> Vec<usize> {
     let step = step.max(1);
     if extent < step {

@@ -370,6 +370,19 @@ impl EstimatorParams {
         }
     }
 
+    /// Samples a frame's grid needs for its robust depth range to be robust:
+    /// with fewer than `1 / percentile_low`, the low percentile's rank is the
+    /// first sample and the range is the extremes of a few samples (at
+    /// decimation 256 a 320 × 240 frame is one sample, and its spacing 63×
+    /// the full frame's).
+    pub fn grid_samples_min(&self) -> usize {
+        if self.percentile_low > 0.0 {
+            (1.0 / self.percentile_low - 1e-9).ceil() as usize
+        } else {
+            2
+        }
+    }
+
     pub fn validate(&self) -> Result<(), ParamError> {
         let p = self;
         let q = &p.quality;
