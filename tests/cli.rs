@@ -264,19 +264,7 @@ fn quality_targets_from_the_command_line() {
         s.contains("spacing  unseen_fraction off (not in force)\n"),
         "{s}"
     );
-    let out = alfd(&[
-        "estimate",
-        "--depth",
-        "tests/data/roof_160x120.z16",
-        "--width",
-        "160",
-        "--height",
-        "120",
-        "--hfov-deg",
-        "69",
-        "--depth-scale-m",
-        "1e30",
-    ]);
+    let out = alfd(&roof_estimate(&["--depth-scale-m", "1e30"]));
     let s = String::from_utf8_lossy(&out.stdout);
     // Depth far beyond any camera: a float's digits are not printed as a
     // measurement, and a count that saturates is not given as a count.

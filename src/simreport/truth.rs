@@ -468,20 +468,29 @@ texture = { colour = [0.7, 0.6, 0.6], contrast = 0.3, seed = 2 }
         assert!(track.iter().any(|s| s.occlusion_degree.is_some()));
     }
 
-    #[test]
-    fn the_stream_gives_the_batch_samples() {
+    /// The inline scene, its intrinsics and poses along its line.
+    fn inline_track() -> (Arc<Scene>, Intrinsics, Vec<TruthPose>) {
         let scene = Arc::new(Scene::parse(SCENE, "inline").expect("the inline scene parses"));
         let intr = Intrinsics::from_hfov_deg(64, 48, 69.0, None).unwrap();
-        let poses = poses(intr);
-        // Fixed decimation (parallel estimates) and auto (one estimator in
-        // pose order, whose state carries from frame to frame).
-        for params in [
+        (scene, intr, poses(intr))
+    }
+
+    /// Fixed decimation (parallel estimates) and auto (one estimator in pose
+    /// order, whose state carries from frame to frame).
+    fn both_decimations() -> [EstimatorParams; 2] {
+        [
             EstimatorParams::default(),
             EstimatorParams {
                 decimation: Decimation::auto(),
                 ..EstimatorParams::default()
             },
-        ] {
+        ]
+    }
+
+    #[test]
+    fn the_stream_gives_the_batch_samples() {
+        let (scene, intr, poses) = inline_track();
+        for params in both_decimations() {
             let batch = truth_estimates(&scene, intr, &params, &poses);
             assert_eq!(batch.len(), poses.len());
             let stream = TruthStream::spawn(scene.clone(), intr, params.clone())
@@ -514,16 +523,8 @@ texture = { colour = [0.7, 0.6, 0.6], contrast = 0.3, seed = 2 }
     /// caller's thread: the batch's samples, in order, estimator state included.
     #[test]
     fn a_starved_worker_hands_its_poses_back_to_finish() {
-        let scene = Arc::new(Scene::parse(SCENE, "inline").expect("the inline scene parses"));
-        let intr = Intrinsics::from_hfov_deg(64, 48, 69.0, None).unwrap();
-        let poses = poses(intr);
-        for params in [
-            EstimatorParams::default(),
-            EstimatorParams {
-                decimation: Decimation::auto(),
-                ..EstimatorParams::default()
-            },
-        ] {
+        let (scene, intr, poses) = inline_track();
+        for params in both_decimations() {
             let batch = truth_estimates(&scene, intr, &params, &poses);
             let stream = TruthStream::spawn_held(scene.clone(), intr, params.clone(), true)
                 .expect("a thread for the stream");
