@@ -649,6 +649,29 @@ fn tradeoff_refuses_what_it_cannot_measure_by_name() {
     );
 }
 
+/// `alfd sim --config` with an estimator config (no `[mavlink]`): it validated,
+/// and the daemon stopped for want of a link ("config: no [mavlink] section: the
+/// daemon needs a link", no file named) after making an empty flight directory.
+#[test]
+fn sim_refuses_a_config_that_is_not_a_daemons_before_making_a_flight() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    rejects(
+        &[
+            "sim",
+            "--config",
+            "configs/estimator.toml",
+            "--out",
+            out.to_str().unwrap(),
+        ],
+        &[
+            "--config configs/estimator.toml: no [mavlink] section",
+            "configs/sim.toml",
+        ],
+    );
+    assert!(!out.exists(), "a flight directory was made");
+}
+
 /// `alfd eval` refuses, before its first scene, what would fail only after
 /// minutes of evaluation: an output path that is a file ("writing file: File
 /// exists" came after the scenes loaded), a scene directory that is not there,

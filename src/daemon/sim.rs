@@ -412,7 +412,20 @@ pub async fn run_sim_with(
     // The scene and a given config, read and checked before any directory is made:
     // a bad one leaves no empty flight behind.
     let given = match &args.config {
-        Some(p) => Some(Config::load(p).map_err(|e| setup(e.to_string()))?),
+        Some(p) => {
+            let c = Config::load(p).map_err(|e| setup(e.to_string()))?;
+            // An estimator config (`configs/estimator.toml`) validates on its own;
+            // the daemon then stopped for want of a link, after the flight's
+            // directory was made.
+            if c.link.is_none() {
+                return Err(setup(format!(
+                    "--config {}: no [mavlink] section, so not a daemon config: alfd sim starts from \
+                     a whole daemon config (configs/sim.toml) and replaces only its link's address",
+                    p.display()
+                )));
+            }
+            Some(c)
+        }
         None => None,
     };
     // The scene flown: a given config's own, else --scene's, else the built-in one.
