@@ -492,8 +492,9 @@ impl Summary {
                 self.first_sight_violations,
                 self.avoidable_violations
             ),
+            // Three flags of their own: "0 flagged (…, fallback 2)" read as two of none.
             format!(
-                "{:<16}{} flagged (rate-limited {}, fallback {})",
+                "{:<16}{} flagged; {} rate-limited, {} on the fallback spacing",
                 "under-sampled", self.undersampled, self.rate_limited, self.fallback
             ),
             format!(
@@ -914,6 +915,15 @@ mod tests {
         caps[5].fallback = true;
         let s = summarize(&track(|_| Some(1.0)), &caps, 1.0, 0.0);
         assert_eq!((s.undersampled, s.rate_limited, s.fallback), (1, 1, 1));
+        // Three counts of their own, not the fallback's inside the flagged.
+        caps[3].undersampled = false;
+        let s = summarize(&track(|_| Some(1.0)), &caps, 1.0, 0.0);
+        assert!(
+            s.render_text()
+                .contains("under-sampled   0 flagged; 1 rate-limited, 1 on the fallback spacing\n"),
+            "{}",
+            s.render_text()
+        );
     }
 
     #[test]
