@@ -649,6 +649,55 @@ fn tradeoff_refuses_what_it_cannot_measure_by_name() {
     );
 }
 
+/// A depth frame dumped from the daemon's camera, estimated with the daemon's
+/// config, is read as the daemon reads it: configs/sim.toml's camera gives 0.01 m
+/// per unit (the default 0.001 put every depth ten times too near, silently) and
+/// its field of view; a flag still overrides, and without either the field of
+/// view is asked for by name.
+#[test]
+fn estimate_reads_the_depth_camera_of_a_daemon_config() {
+    let raw = [
+        "estimate",
+        "--depth",
+        "tests/data/roof_160x120.z16",
+        "--width",
+        "160",
+        "--height",
+        "120",
+    ];
+    let with = |extra: &[&str]| {
+        let mut a = raw.to_vec();
+        a.extend_from_slice(extra);
+        let out = alfd(&a);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    };
+    let s = with(&["--config", "configs/sim.toml"]);
+    assert!(s.contains("depth range    200.0 m to 400.0 m"), "{s}");
+    assert!(
+        s.contains("from config    hfov 69 deg, 0.01 m per unit ([depth] of configs/sim.toml)"),
+        "{s}"
+    );
+    let s = with(&[
+        "--config",
+        "configs/sim.toml",
+        "--depth-scale-m",
+        "0.001",
+        "--hfov-deg",
+        "69",
+    ]);
+    assert!(s.contains("depth range    20.000 m to 40.000 m"), "{s}");
+    assert!(!s.contains("from config"), "{s}");
+    // An estimator config has no camera: the flag is needed.
+    let mut a = raw.to_vec();
+    a.extend_from_slice(&["--config", "configs/estimator.toml"]);
+    rejects(&a, &["--hfov-deg", "field of view is needed"]);
+}
+
 /// `alfd sim --config` with an estimator config (no `[mavlink]`): it validated,
 /// and the daemon stopped for want of a link ("config: no [mavlink] section: the
 /// daemon needs a link", no file named) after making an empty flight directory.

@@ -1,6 +1,7 @@
 //! `alfd estimate`: one estimate of the permissible spacing from one depth map.
 
 use super::{bad, emit, load_config};
+use alfd::config::SourceKind;
 use alfd::core::{Decimation, Estimator, Intrinsics, Model, Profile, Quality};
 use alfd::depthio::{read_depth, DepthFormat, ReadOptions};
 use alfd::report::{estimate_json, estimate_text, InputInfo};
@@ -14,9 +15,10 @@ pub struct Args {
     /// Depth map: raw Z16 (.z16/.raw), 16-bit grey PNG (.png) or PFM float metres (.pfm).
     #[arg(long)]
     depth: PathBuf,
-    /// Horizontal field of view, degrees (1 to 170), across the image width.
+    /// Horizontal field of view, degrees (1 to 170), across the image width
+    /// (default: the --config's [depth] hfov_deg, when it has a depth source).
     #[arg(long, allow_negative_numbers = true)]
-    hfov_deg: f64,
+    hfov_deg: Option<f64>,
     /// Camera pitch, degrees: 0 is nadir, positive tilts forward.
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     pitch_deg: f64,
@@ -29,10 +31,12 @@ pub struct Args {
     /// Image height in pixels (required for raw Z16).
     #[arg(long)]
     height: Option<usize>,
-    /// Metres per Z16/PNG unit.
-    #[arg(long, default_value_t = 0.001)]
-    depth_scale_m: f64,
-    /// Config file ([sampling], [estimator], [score]).
+    /// Metres per Z16/PNG unit (default: the --config's [depth] scale_m, when
+    /// it has a depth source, else 0.001).
+    #[arg(long)]
+    depth_scale_m: Option<f64>,
+    /// Config file ([quality], [sampling], [estimator], [score]; a daemon
+    /// config's [depth] gives the field of view and the depth scale).
     #[arg(long)]
     config: Option<PathBuf>,
     /// Override the sampling model (default: quality).
@@ -69,10 +73,26 @@ pub struct Args {
 
 pub fn run(a: Args) -> Result<ExitCode> {
     let mut cfg = load_config(&a.config)?;
-    if !(1.0..=170.0).contains(&a.hfov_deg) {
+    // A frame dumped from the daemon's own depth camera is read as the daemon
+    // reads it: with the config's scale (a RealSense at 0.01 m per unit read at
+    // the default 0.001 put every depth ten times too near) and field of view.
+    let camera = (cfg.depth.kind() != SourceKind::None).then_some(&cfg.depth);
+    let hfov_deg =
+        match (a.hfov_deg, camera) {
+            (Some(h), _) => h,
+            (None, Some(d)) => d.hfov_deg,
+            (None, None) => return Err(bad(
+                "--hfov-deg: the depth camera's horizontal field of view is needed (or a --config \
+                 whose [depth] section gives it)",
+            )),
+        };
+    let depth_scale_m = a
+        .depth_scale_m
+        .or(camera.map(|d| d.scale_m))
+        .unwrap_or(0.001);
+    if !(1.0..=170.0).contains(&hfov_deg) {
         return Err(bad(format!(
-            "--hfov-deg {}: the field of view must be between 1 and 170 degrees",
-            a.hfov_deg
+            "--hfov-deg {hfov_deg}: the field of view must be between 1 and 170 degrees"
         )));
     }
     if !a.pitch_deg.is_finite() {
@@ -81,10 +101,9 @@ pub fn run(a: Args) -> Result<ExitCode> {
             a.pitch_deg
         )));
     }
-    if !(a.depth_scale_m.is_finite() && a.depth_scale_m > 0.0) {
+    if !(depth_scale_m.is_finite() && depth_scale_m > 0.0) {
         return Err(bad(format!(
-            "--depth-scale-m {}: must be a positive number of metres per unit",
-            a.depth_scale_m
+            "--depth-scale-m {depth_scale_m}: must be a positive number of metres per unit"
         )));
     }
     let p = &mut cfg.estimator;
@@ -152,10 +171,14 @@ pub fn run(a: Args) -> Result<ExitCode> {
         format,
         width: a.width,
         height: a.height,
-        scale_m: a.depth_scale_m,
+        scale_m: depth_scale_m,
     };
     let image = read_depth(&a.depth, &opts).map_err(|e| bad(e.to_string()))?;
-    let intr = Intrinsics::from_hfov_deg(image.width(), image.height(), a.hfov_deg, None)
+    // The config's principal point belongs to its frame size only.
+    let principal_px = camera
+        .filter(|d| (d.width, d.height) == (image.width(), image.height()))
+        .and_then(|d| d.principal_px);
+    let intr = Intrinsics::from_hfov_deg(image.width(), image.height(), hfov_deg, principal_px)
         .map_err(|e| bad(format!("--hfov-deg: {e}")))?;
     let mut est = Estimator::new(cfg.estimator.clone());
     let start = Instant::now();
@@ -175,13 +198,27 @@ pub fn run(a: Args) -> Result<ExitCode> {
         let v = estimate_json(&e, &cfg.estimator, choice.as_ref(), &input, elapsed_us);
         emit(&format!("{}\n", serde_json::to_string_pretty(&v)?))?;
     } else {
-        emit(&estimate_text(
-            &e,
-            &cfg.estimator,
-            choice.as_ref(),
-            &input,
-            elapsed_us,
-        ))?;
+        let mut text = estimate_text(&e, &cfg.estimator, choice.as_ref(), &input, elapsed_us);
+        // What the config chose instead of a flag, said under the input line.
+        let mut taken = Vec::new();
+        if a.hfov_deg.is_none() {
+            taken.push(format!("hfov {hfov_deg} deg"));
+        }
+        if a.depth_scale_m.is_none() && camera.is_some() && format != Some(DepthFormat::Pfm) {
+            taken.push(format!("{depth_scale_m} m per unit"));
+        }
+        if let (false, Some(path)) = (taken.is_empty(), &a.config) {
+            let at = text.find('\n').map_or(text.len(), |i| i + 1);
+            text.insert_str(
+                at,
+                &format!(
+                    "from config    {} ([depth] of {})\n",
+                    taken.join(", "),
+                    path.display()
+                ),
+            );
+        }
+        emit(&text)?;
     }
     Ok(ExitCode::SUCCESS)
 }
