@@ -23,6 +23,8 @@ pub struct InputInfo {
     pub height: usize,
     pub focal_px: f64,
     pub pitch_deg: f64,
+    /// Metres per unit of a Z16 or PNG map (`None`: PFM, in metres).
+    pub depth_scale_m: Option<f64>,
 }
 
 /// Why a frame gave no estimate, in words an operator can act on: for too few valid
@@ -129,6 +131,7 @@ pub fn estimate_json(
             "height": input.height,
             "focal_px": num(Some(input.focal_px)),
             "pitch_deg": input.pitch_deg,
+            "depth_scale_m": input.depth_scale_m,
         },
         "elapsed_us": elapsed_us,
     })

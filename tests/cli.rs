@@ -692,6 +692,10 @@ fn estimate_reads_the_depth_camera_of_a_daemon_config() {
     ]);
     assert!(s.contains("depth range    20.000 m to 40.000 m"), "{s}");
     assert!(!s.contains("from config"), "{s}");
+    // The JSON echoes the scale it read the map at, so a result file stands alone.
+    let mut a = raw.to_vec();
+    a.extend_from_slice(&["--config", "configs/sim.toml"]);
+    assert_eq!(json(&a)["input"]["depth_scale_m"], 0.01);
     // An estimator config has no camera: the flag is needed.
     let mut a = raw.to_vec();
     a.extend_from_slice(&["--config", "configs/estimator.toml"]);

@@ -193,6 +193,7 @@ pub fn run(a: Args) -> Result<ExitCode> {
         height: image.height(),
         focal_px: intr.focal_px(),
         pitch_deg: a.pitch_deg,
+        depth_scale_m: (format != Some(DepthFormat::Pfm)).then_some(depth_scale_m),
     };
     if a.json {
         let v = estimate_json(&e, &cfg.estimator, choice.as_ref(), &input, elapsed_us);
