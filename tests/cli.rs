@@ -723,6 +723,18 @@ fn sim_refuses_a_config_that_is_not_a_daemons_before_making_a_flight() {
         ],
     );
     assert!(!out.exists(), "a flight directory was made");
+    // An --out that is a file, or under one, is named by its flag.
+    let file = dir.path().join("a-file");
+    std::fs::write(&file, b"").unwrap();
+    rejects(
+        &["sim", "--out", file.to_str().unwrap()],
+        &["--out", "a-file: a file, not a directory"],
+    );
+    let under = file.join("x");
+    rejects(
+        &["sim", "--out", under.to_str().unwrap()],
+        &["--out", "a-file/x: Not a directory"],
+    );
 }
 
 /// `alfd eval` refuses, before its first scene, what would fail only after

@@ -464,8 +464,14 @@ pub async fn run_sim_with(
             scene.name
         )));
     }
-    std::fs::create_dir_all(&args.out)
-        .map_err(|e| setup(format!("{}: {e}", args.out.display())))?;
+    // Named by its flag: "afile: File exists (os error 17)" did not say what to change.
+    std::fs::create_dir_all(&args.out).map_err(|e| {
+        setup(if args.out.exists() && !args.out.is_dir() {
+            format!("--out {}: a file, not a directory", args.out.display())
+        } else {
+            format!("--out {}: {e}", args.out.display())
+        })
+    })?;
     let flight_dir = super::run::next_flight_dir(&args.out);
     std::fs::create_dir_all(&flight_dir)
         .map_err(|e| setup(format!("{}: {e}", flight_dir.display())))?;
