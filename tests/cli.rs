@@ -702,11 +702,13 @@ fn estimate_reads_the_depth_camera_of_a_daemon_config() {
     rejects(&a, &["--hfov-deg", "field of view is needed"]);
 }
 
-/// `alfd sim --config` with an estimator config (no `[mavlink]`): it validated,
-/// and the daemon stopped for want of a link ("config: no [mavlink] section: the
-/// daemon needs a link", no file named) after making an empty flight directory.
+/// `alfd sim` refuses by flag what it cannot fly, before any directory is made:
+/// `--config` with an estimator config (no `[mavlink]`: it validated, and the
+/// daemon stopped for want of a link, "config: no [mavlink] section: the daemon
+/// needs a link", no file named, after making an empty flight directory), and an
+/// `--out` that is a file.
 #[test]
-fn sim_refuses_a_config_that_is_not_a_daemons_before_making_a_flight() {
+fn sim_refuses_by_flag_before_making_a_flight() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out");
     rejects(
