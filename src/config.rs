@@ -913,7 +913,9 @@ impl RawConfig {
         {
             let min = estimator.grid_samples_min();
             let samples = crate::core::inverse::grid_samples(depth.width, depth.height, *n);
-            if samples < min {
+            let coarsest = crate::core::inverse::coarsest_step(depth.width, depth.height, min);
+            // A frame too small even at every pixel is no stride's fault.
+            if samples < min && *n > coarsest {
                 return Err((
                     "estimator.decimation".into(),
                     format!(
@@ -922,7 +924,7 @@ impl RawConfig {
                         depth.width,
                         depth.height,
                         100.0 * estimator.percentile_low,
-                        crate::core::inverse::coarsest_step(depth.width, depth.height, min)
+                        coarsest
                     ),
                 ));
             }

@@ -372,7 +372,9 @@ pub fn estimate_text(
         }
     }
     let min = params.grid_samples_min();
-    if e.samples < min {
+    let coarsest = crate::core::inverse::coarsest_step(input.width, input.height, min);
+    // A frame too small even at every pixel is no stride's fault.
+    if e.samples < min && e.decimation > coarsest {
         let _ = writeln!(
             s,
             "               {} samples of the frame at decimation {}, fewer than the {min} its {} % percentile needs: \
@@ -380,7 +382,7 @@ pub fn estimate_text(
             e.samples,
             e.decimation,
             100.0 * params.percentile_low,
-            crate::core::inverse::coarsest_step(input.width, input.height, min)
+            coarsest
         );
     }
     let _ = writeln!(s, "elapsed        {elapsed_us} us");
