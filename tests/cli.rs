@@ -14,6 +14,17 @@ fn alfd(args: &[&str]) -> Output {
         .expect("alfd runs")
 }
 
+/// What `alfd args` prints, once it has succeeded.
+fn text(args: &[&str]) -> String {
+    let out = alfd(args);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
 /// `alfd estimate` on the shipped 160×120 roof map, then `extra`.
 fn roof_estimate<'a>(extra: &[&'a str]) -> Vec<&'a str> {
     let mut a = vec![
@@ -254,8 +265,7 @@ fn quality_targets_from_the_command_line() {
         !terms.contains(&"visibility") && terms.contains(&"views"),
         "{terms:?}"
     );
-    let out = alfd(&roof_estimate(&["--unseen-fraction-max", "off"]));
-    let s = String::from_utf8_lossy(&out.stdout);
+    let s = text(&roof_estimate(&["--unseen-fraction-max", "off"]));
     assert!(
         s.contains("forward overlap off, unseen off, views >= 2"),
         "{s}"
@@ -264,29 +274,25 @@ fn quality_targets_from_the_command_line() {
         s.contains("spacing  unseen_fraction off (not in force)\n"),
         "{s}"
     );
-    let out = alfd(&roof_estimate(&["--depth-scale-m", "1e30"]));
-    let s = String::from_utf8_lossy(&out.stdout);
+    let s = text(&roof_estimate(&["--depth-scale-m", "1e30"]));
     // Depth far beyond any camera: a float's digits are not printed as a
     // measurement, and a count that saturates is not given as a count.
     assert!(s.contains("depth range    2.000e34 m to 4.000e34 m"), "{s}");
     assert!(s.contains("predicted at chosen: unbounded"), "{s}");
-    let out = alfd(&roof_estimate(&[]));
-    let s = String::from_utf8_lossy(&out.stdout);
+    let s = text(&roof_estimate(&[]));
     assert!(
         s.contains("spacing  forward_overlap off (not in force)\n"),
         "{s}"
     );
     // A stride that leaves the frame one sample: the spacing rests on it, and
     // the text says so with the coarsest stride that keeps 200 (160/9 × 120/9).
-    let out = alfd(&roof_estimate(&["--decimation", "256"]));
-    let s = String::from_utf8_lossy(&out.stdout);
+    let s = text(&roof_estimate(&["--decimation", "256"]));
     assert!(
         s.contains("1 samples of the frame at decimation 256, fewer than the 200 its 0.5 % percentile needs")
             && s.contains("(decimation 9 at most for this frame)"),
         "{s}"
     );
-    let out = alfd(&roof_estimate(&["--decimation", "9"]));
-    assert!(!String::from_utf8_lossy(&out.stdout).contains("percentile needs"));
+    assert!(!text(&roof_estimate(&["--decimation", "9"])).contains("percentile needs"));
     let out = alfd(&roof_estimate(&["--views-per-point-min", "two"]));
     assert_eq!(out.status.code(), Some(2));
     let err = String::from_utf8_lossy(&out.stderr);
@@ -668,13 +674,7 @@ fn estimate_reads_the_depth_camera_of_a_daemon_config() {
     let with = |extra: &[&str]| {
         let mut a = raw.to_vec();
         a.extend_from_slice(extra);
-        let out = alfd(&a);
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        String::from_utf8_lossy(&out.stdout).into_owned()
+        text(&a)
     };
     let s = with(&["--config", "configs/sim.toml"]);
     assert!(s.contains("depth range    200.0 m to 400.0 m"), "{s}");
