@@ -25,8 +25,8 @@ fn text(args: &[&str]) -> String {
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
-/// `alfd estimate` on the shipped 160×120 roof map, then `extra`.
-fn roof_estimate<'a>(extra: &[&'a str]) -> Vec<&'a str> {
+/// `alfd estimate` on the shipped 160×120 roof map, then `extra`; no field of view.
+fn roof_map<'a>(extra: &[&'a str]) -> Vec<&'a str> {
     let mut a = vec![
         "estimate",
         "--depth",
@@ -35,9 +35,14 @@ fn roof_estimate<'a>(extra: &[&'a str]) -> Vec<&'a str> {
         "160",
         "--height",
         "120",
-        "--hfov-deg",
-        "69",
     ];
+    a.extend_from_slice(extra);
+    a
+}
+
+/// `alfd estimate` on the shipped 160×120 roof map at 69°, then `extra`.
+fn roof_estimate<'a>(extra: &[&'a str]) -> Vec<&'a str> {
+    let mut a = roof_map(&["--hfov-deg", "69"]);
     a.extend_from_slice(extra);
     a
 }
@@ -662,20 +667,7 @@ fn tradeoff_refuses_what_it_cannot_measure_by_name() {
 /// view is asked for by name.
 #[test]
 fn estimate_reads_the_depth_camera_of_a_daemon_config() {
-    let raw = [
-        "estimate",
-        "--depth",
-        "tests/data/roof_160x120.z16",
-        "--width",
-        "160",
-        "--height",
-        "120",
-    ];
-    let with = |extra: &[&str]| {
-        let mut a = raw.to_vec();
-        a.extend_from_slice(extra);
-        text(&a)
-    };
+    let with = |extra: &[&str]| text(&roof_map(extra));
     let s = with(&["--config", "configs/sim.toml"]);
     assert!(s.contains("depth range    200.0 m to 400.0 m"), "{s}");
     assert!(
@@ -693,13 +685,15 @@ fn estimate_reads_the_depth_camera_of_a_daemon_config() {
     assert!(s.contains("depth range    20.000 m to 40.000 m"), "{s}");
     assert!(!s.contains("from config"), "{s}");
     // The JSON echoes the scale it read the map at, so a result file stands alone.
-    let mut a = raw.to_vec();
-    a.extend_from_slice(&["--config", "configs/sim.toml"]);
-    assert_eq!(json(&a)["input"]["depth_scale_m"], 0.01);
+    assert_eq!(
+        json(&roof_map(&["--config", "configs/sim.toml"]))["input"]["depth_scale_m"],
+        0.01
+    );
     // An estimator config has no camera: the flag is needed.
-    let mut a = raw.to_vec();
-    a.extend_from_slice(&["--config", "configs/estimator.toml"]);
-    rejects(&a, &["--hfov-deg", "field of view is needed"]);
+    rejects(
+        &roof_map(&["--config", "configs/estimator.toml"]),
+        &["--hfov-deg", "field of view is needed"],
+    );
 }
 
 /// `alfd sim` refuses by flag what it cannot fly, before any directory is made:
