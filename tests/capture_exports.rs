@@ -6,13 +6,13 @@ mod tools;
 use std::fs;
 use std::process::Command;
 
-use alfd::capture::exif::{find_exif_app1, parse_exif_gps};
+use alfd::capture::exif::{find_exif_app1, parse_exif_gps, parse_exif_taken};
 use alfd::capture::export::{Skip, GEO_TXT, TRANSFORMS_JSON};
 use alfd::capture::tlog;
 use alfd::capture::{
-    encode_capture, image_file_name, log_capture, read_manifest, write_exports, Attitude,
-    CameraIntrinsics, CaptureMode, CaptureRecord, CaptureStore, DirStore, ExifGps, ImageFormat,
-    MemStore, Position, Spacing, TlogWriter,
+    encode_capture, encode_jpeg, exif_app1, image_file_name, log_capture, read_manifest,
+    write_exports, Attitude, CameraIntrinsics, CaptureMode, CaptureRecord, CaptureStore, DirStore,
+    ExifGps, ImageFormat, MemStore, Position, Spacing, TlogWriter,
 };
 use serde_json::Value;
 
@@ -208,6 +208,13 @@ fn exif_gps_in_logged_jpegs_reads_back_with_exiftool() {
         assert!((p.lon_deg - r.position.lon_deg).abs() < 1e-9);
         assert!((p.alt_m - r.position.alt_m).abs() < 1e-3);
         assert_eq!(p.gps_time_unix_us, r.time_unix_us);
+        let taken = parse_exif_taken(find_exif_app1(&jpeg).unwrap()).unwrap();
+        assert_eq!(taken.resolution_s, 0.001);
+        let want_s = r.time_unix_us.unwrap() as f64 / 1e6;
+        assert!(
+            (taken.clock_s - want_s).abs() < 1e-6,
+            "{taken:?}, want {want_s}"
+        );
         log_capture(&mut store, r, Some(&jpeg)).unwrap();
     }
     if !tools::exiftool("exif_gps_in_logged_jpegs_reads_back_with_exiftool") {
@@ -228,6 +235,7 @@ fn exif_gps_in_logged_jpegs_reads_back_with_exiftool() {
             "-GPSAltitude",
             "-Make",
             "-GPSDateTime",
+            "-SubSecDateTimeOriginal",
         ])
         .args(names.iter().map(|n| tmp.path().join(n)))
         .output()
@@ -252,6 +260,8 @@ fn exif_gps_in_logged_jpegs_reads_back_with_exiftool() {
     }
     // 1780123456.5 s = 2026-05-30 06:44:16.5 UTC (capture 1).
     assert_eq!(tags[0]["GPSDateTime"], "2026:05:30 06:44:16.5Z");
+    // The camera's time to the millisecond, as a tool that pairs by time reads it.
+    assert_eq!(tags[0]["SubSecDateTimeOriginal"], "2026:05:30 06:44:16.500");
     // Exif 2.3's required tags are all there: exiftool finds nothing to complain about.
     let out = Command::new("exiftool")
         .args(["-validate", "-warning", "-a", "-j"])
@@ -432,6 +442,157 @@ fn a_flight_cut_short_gets_its_exports_from_alfd_export() {
     assert!(!geo.contains("IMG_000002.jpg"), "{geo}");
     let transforms = fs::read_to_string(flight_dir.join(TRANSFORMS_JSON)).unwrap();
     assert!(!transforms.contains("IMG_000002.jpg"), "{transforms}");
+}
+
+/// `alfd export DIR --images CAMERA`, its exit status and stdout, stderr.
+fn alfd_export_images(
+    dir: &std::path::Path,
+    camera: &std::path::Path,
+) -> (std::process::ExitStatus, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_alfd"))
+        .arg("export")
+        .arg(dir)
+        .arg("--images")
+        .arg(camera)
+        .output()
+        .unwrap();
+    (
+        out.status,
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// A picture as an external camera writes it: a JPEG whose EXIF holds the time
+/// its own clock read (here an hour and 0.1 s ahead of UTC, to the millisecond).
+fn camera_picture(time_unix_us: u64) -> Vec<u8> {
+    let g = ExifGps {
+        lat_deg: 0.0,
+        lon_deg: 0.0,
+        alt_m: 0.0,
+        time_unix_us: Some(time_unix_us + 3_600_100_000),
+        make: "SONY".into(),
+        model: "ILCE-7RM4".into(),
+    };
+    let rgb = vec![128u8; (W * H * 3) as usize];
+    encode_jpeg(&rgb, W, H, 80, Some(exif_app1(&g, W, H).unwrap())).unwrap()
+}
+
+/// A `camera_command` flight: the camera keeps its pictures on its card, the
+/// manifest has a line per trigger. `alfd export --images` pairs the card's
+/// pictures with the captures (here by time: a shot on the ground before take-off
+/// and a missed trigger leave the counts equal and the order wrong), writes their
+/// names and positions into geo.txt, and says what it left out and why; pictures
+/// it cannot pair leave the exports as they were.
+#[test]
+fn an_external_cameras_pictures_are_paired_with_their_captures() {
+    let tmp = tempfile::tempdir().unwrap();
+    let flight_dir = tmp.path().join("flight-001");
+    let card = tmp.path().join("DCIM");
+    fs::create_dir(&card).unwrap();
+    // Uneven intervals (1.5 to 3.3 s), as an adaptive spacing gives.
+    let gaps_s = [0.0, 2.1, 1.5, 3.3, 2.7, 1.9, 2.4, 3.0, 1.6, 2.2];
+    let mut t_us = 1_780_123_456_000_000u64;
+    let mut records = Vec::new();
+    for (k, gap) in gaps_s.iter().enumerate() {
+        t_us += (gap * 1e6) as u64;
+        let seq = k as u64 + 1;
+        let mut r = record(seq, 47.0 + seq as f64 * 1e-5, 8.5, 500.0, 0.0, 0.0);
+        r.image = None;
+        r.intrinsics = None;
+        r.capture_mode = CaptureMode::CameraCommand;
+        r.time_unix_us = Some(t_us);
+        r.time_boot_us = t_us - 1_780_000_000_000_000;
+        records.push(r);
+    }
+    {
+        let mut store = DirStore::open(&flight_dir).unwrap();
+        for r in &records {
+            log_capture(&mut store, r, None).unwrap();
+        }
+    }
+    // A shot on the ground five minutes before; capture 4's trigger missed.
+    let first_us = records[0].time_unix_us.unwrap();
+    fs::write(
+        card.join("DSC00001.JPG"),
+        camera_picture(first_us - 300_000_000),
+    )
+    .unwrap();
+    let mut name_of = std::collections::BTreeMap::new();
+    for r in records.iter().filter(|r| r.seq != 4) {
+        let name = format!("DSC{:05}.JPG", name_of.len() + 2);
+        // The camera exposes 80 ms after the trigger.
+        fs::write(
+            card.join(&name),
+            camera_picture(r.time_unix_us.unwrap() + 80_000),
+        )
+        .unwrap();
+        name_of.insert(r.seq, name);
+    }
+    fs::write(card.join("DSC00002.ARW"), b"raw").unwrap();
+
+    // Without the card: the captures are counted, and the way to pair them said.
+    let (status, stdout, stderr) = alfd_export(&flight_dir);
+    assert!(status.success(), "{stderr}");
+    assert!(
+        stdout.contains("geo.txt          0 images (10 skipped: no_image 10)"),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains("external camera  10 captures were taken by an external camera: pair its pictures with `alfd export")
+            && stdout.contains("--images DIR`"),
+        "{stdout}"
+    );
+
+    let (status, stdout, stderr) = alfd_export_images(&flight_dir, &card);
+    assert!(status.success(), "{stderr}");
+    let geo = fs::read_to_string(flight_dir.join(GEO_TXT)).unwrap();
+    let lines: Vec<&str> = geo.lines().collect();
+    assert_eq!(lines[0], "EPSG:4326");
+    assert_eq!(lines.len(), 10, "{geo}");
+    for (line, (seq, name)) in lines[1..].iter().zip(&name_of) {
+        let r = &records[*seq as usize - 1];
+        // Position only: the camera's mounting is not alfd's to know.
+        let want = format!(
+            "{name} {:.9} {:.9} {:.3}",
+            r.position.lon_deg, r.position.lat_deg, r.position.alt_m
+        );
+        assert_eq!(*line, want);
+    }
+    assert!(!geo.contains("DSC00001.JPG"), "{geo}");
+    assert!(!flight_dir.join(TRANSFORMS_JSON).exists());
+    for want in [
+        "camera           10 JPEG pictures in",
+        "in the order of their EXIF capture times",
+        "left alone       1 other file (raw, video, sidecars: not JPEG)",
+        "paired           9 of 10 captures by time: in order, a picture would be 300.1 s from its capture's time",
+        "camera clock     1 h 0 min 0.2 s ahead of UTC",
+        "not paired       1 picture no capture triggered (left out): DSC00001.JPG",
+        "no picture       1 capture the camera has no picture for: seq 4",
+        "geo.txt          9 images (1 skipped: no_image 1)",
+        "transforms.json  not written",
+    ] {
+        assert!(stdout.contains(want), "{want:?} not in\n{stdout}");
+    }
+    assert!(!stdout.contains("external camera  "), "{stdout}");
+
+    // Pictures that cannot be told apart leave the exports as they were.
+    let other = tmp.path().join("other");
+    fs::create_dir(&other).unwrap();
+    for k in 0..4u64 {
+        let t = first_us + 5_000_000_000 + k * 700_000;
+        fs::write(other.join(format!("IMG_{k}.JPG")), camera_picture(t)).unwrap();
+    }
+    let (status, _, stderr) = alfd_export_images(&flight_dir, &other);
+    assert_eq!(status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("4 pictures for 10 captures, and no one clock offset pairs more than"),
+        "{stderr}"
+    );
+    assert_eq!(fs::read_to_string(flight_dir.join(GEO_TXT)).unwrap(), geo);
+    let (status, _, stderr) = alfd_export_images(&flight_dir, &tmp.path().join("nowhere"));
+    assert_eq!(status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("not a directory"), "{stderr}");
 }
 
 /// A directory a daemon still writes is refused (its temporaries are images in

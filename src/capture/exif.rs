@@ -26,6 +26,7 @@ const TAG_GPS_IFD: u16 = 0x8825;
 const TAG_EXIF_VERSION: u16 = 0x9000;
 const TAG_DATE_TIME_ORIGINAL: u16 = 0x9003;
 const TAG_COMPONENTS_CONFIGURATION: u16 = 0x9101;
+const TAG_SUB_SEC_TIME_ORIGINAL: u16 = 0x9291;
 const TAG_FLASHPIX_VERSION: u16 = 0xA000;
 const TAG_COLOR_SPACE: u16 = 0xA001;
 const TAG_PIXEL_X_DIMENSION: u16 = 0xA002;
@@ -228,9 +229,10 @@ fn days_from_civil(y: i64, m: u32, d: u32) -> i64 {
 }
 
 /// The APP1 payload (`Exif\0\0` + TIFF) for a `width` × `height` capture: IFD0
-/// (Make, Model, DateTime, resolution), the Exif IFD (ExifVersion, DateTimeOriginal,
-/// pixel dimensions, sRGB) and the GPS IFD (version 2.3, latitude, longitude,
-/// altitude, UTC time and date stamps). Without a time, no date or time tags.
+/// (Make, Model, DateTime, resolution), the Exif IFD (ExifVersion, DateTimeOriginal
+/// and SubSecTimeOriginal, pixel dimensions, sRGB) and the GPS IFD (version 2.3,
+/// latitude, longitude, altitude, UTC time and date stamps). Without a time, no
+/// date or time tags.
 pub fn exif_app1(g: &ExifGps, width: u32, height: u32) -> Result<Vec<u8>, ExifError> {
     let ok = g.lat_deg.abs() <= 90.0 && g.lon_deg.abs() <= 180.0 && g.alt_m.is_finite();
     if !ok {
@@ -264,8 +266,16 @@ pub fn exif_app1(g: &ExifGps, width: u32, height: u32) -> Result<Vec<u8>, ExifEr
     if let Some(s) = &stamp {
         exif.push(ascii(TAG_DATE_TIME_ORIGINAL, s));
     }
+    exif.extend([raw(TAG_COMPONENTS_CONFIGURATION, UNDEFINED, &[1, 2, 3, 0])]);
+    // The milliseconds DateTimeOriginal cannot hold: a reconstruction tool that
+    // orders or pairs pictures by time gets the capture's own.
+    if let Some((.., ms)) = time {
+        exif.push(ascii(
+            TAG_SUB_SEC_TIME_ORIGINAL,
+            &format!("{:03}", ms % 1000),
+        ));
+    }
     exif.extend([
-        raw(TAG_COMPONENTS_CONFIGURATION, UNDEFINED, &[1, 2, 3, 0]),
         raw(TAG_FLASHPIX_VERSION, UNDEFINED, b"0100"),
         short(TAG_COLOR_SPACE, 1),
         long(TAG_PIXEL_X_DIMENSION, width),
@@ -490,6 +500,65 @@ pub fn parse_exif_gps(app1: &[u8]) -> Result<ParsedExif, ExifError> {
             .as_deref()
             .and_then(|e| find(e, TAG_DATE_TIME_ORIGINAL))
             .and_then(text),
+    })
+}
+
+/// When a camera says it took a picture: EXIF DateTimeOriginal (the camera's own
+/// clock, no time zone) with SubSecTimeOriginal's fraction when given.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TakenAt {
+    /// Seconds since 1970-01-01 00:00:00 of the camera's clock, read as if it were UTC.
+    pub clock_s: f64,
+    /// The stamp's step: 1 s without SubSecTimeOriginal, 10^-digits with it.
+    pub resolution_s: f64,
+}
+
+/// The capture time an APP1 payload's Exif IFD holds (DateTimeOriginal, and
+/// SubSecTimeOriginal); `None` when it has none or it is not a date. An external
+/// camera's pictures are paired with alfd's captures by it (`capture::external`).
+pub fn parse_exif_taken(app1: &[u8]) -> Option<TakenAt> {
+    let b = app1.strip_prefix(EXIF_HEADER)?;
+    let le = match b.get(..4)? {
+        b"II\x2A\x00" => true,
+        b"MM\x00\x2A" => false,
+        _ => return None,
+    };
+    let t = Tiff { b, le };
+    let ifd0 = t.ifd(t.u32(4)? as usize)?;
+    let at = Tiff {
+        b: find(&ifd0, TAG_EXIF_IFD)?.value,
+        le,
+    }
+    .u32(0)?;
+    let exif = t.ifd(at as usize)?;
+    let stamp = find(&exif, TAG_DATE_TIME_ORIGINAL).and_then(text)?;
+    // "YYYY:MM:DD HH:MM:SS"; a camera that never had its clock set writes blanks
+    // or zeros, which is no time.
+    let (date, time) = stamp.trim().split_once(' ')?;
+    let num = |s: &str| s.trim().parse::<u32>().ok();
+    let mut d = date.split(':').map(num);
+    let (y, mo, day) = (d.next()??, d.next()??, d.next()??);
+    let mut h = time.split(':').map(num);
+    let (hh, mm, ss) = (h.next()??, h.next()??, h.next()??);
+    if !(1..=12).contains(&mo) || !(1..=31).contains(&day) || hh > 23 || mm > 59 || ss > 60 {
+        return None;
+    }
+    let mut clock_s =
+        days_from_civil(y as i64, mo, day) as f64 * 86_400.0 + f64::from(hh * 3600 + mm * 60 + ss);
+    let mut resolution_s = 1.0;
+    let sub = find(&exif, TAG_SUB_SEC_TIME_ORIGINAL).and_then(text);
+    if let Some(digits) = sub
+        .as_deref()
+        .map(str::trim)
+        .filter(|s| (1..=9).contains(&s.len()) && s.bytes().all(|c| c.is_ascii_digit()))
+    {
+        // "SubSecTimeOriginal" is the fraction's digits: "5" is 0.5 s, "05" 0.05 s.
+        resolution_s = 10f64.powi(-(digits.len() as i32));
+        clock_s += digits.parse::<u32>().ok()? as f64 * resolution_s;
+    }
+    Some(TakenAt {
+        clock_s,
+        resolution_s,
     })
 }
 

@@ -13,8 +13,10 @@ use crate::core::attitude::{body_to_ned, camera_to_body};
 use glam::{DMat3, DMat4, DVec3, DVec4};
 use serde::{Deserialize, Serialize};
 
+use super::external::{is_external, pair, CameraDir, PairError, Pairing, Trigger};
 use super::record::{is_image_name_for, Attitude, CameraIntrinsics, CaptureRecord};
-use super::store::{parse_manifest, CaptureStore, DirStore, StoreError, MANIFEST};
+use super::store::{parse_manifest, CaptureStore, DirStore, Manifest, StoreError, MANIFEST};
+use std::collections::BTreeMap;
 use std::path::Path;
 
 pub const GEO_TXT: &str = "geo.txt";
@@ -91,6 +93,9 @@ pub enum Skip {
     NoPosition,
     NoAttitude,
     NoIntrinsics,
+    /// An external camera's picture: its mounting and lens are not known to alfd, so
+    /// it has a position (`geo.txt`) and no camera pose (`transforms.json`).
+    ExternalCamera,
 }
 
 fn image_of(r: &CaptureRecord) -> Result<&str, Skip> {
@@ -110,15 +115,29 @@ fn finite(xs: &[f64]) -> bool {
 /// [`odm_ypr_deg`], left out when the attitude is unknown). Returns the text and
 /// the records left out, by sequence number.
 pub fn geo_txt(records: &[CaptureRecord]) -> (String, Vec<(u64, Skip)>) {
+    geo_txt_with(records, &External::new())
+}
+
+/// An external camera's pictures by the sequence number of the capture each is
+/// paired with (`capture::external`).
+pub type External = BTreeMap<u64, String>;
+
+/// [`geo_txt`], with the external camera's pictures in `external` on the lines of
+/// their captures. Their lines have no angles: the camera's mounting on the
+/// vehicle is not known to alfd, and a wrong orientation prior misleads more than none.
+pub fn geo_txt_with(records: &[CaptureRecord], external: &External) -> (String, Vec<(u64, Skip)>) {
     let mut out = String::from("EPSG:4326\n");
     let mut skipped = Vec::new();
     for r in records {
-        let name = match image_of(r) {
-            Ok(n) => n,
-            Err(s) => {
-                skipped.push((r.seq, s));
-                continue;
-            }
+        let (name, angles) = match external.get(&r.seq) {
+            Some(n) => (n.as_str(), false),
+            None => match image_of(r) {
+                Ok(n) => (n, true),
+                Err(s) => {
+                    skipped.push((r.seq, s));
+                    continue;
+                }
+            },
         };
         let p = &r.position;
         if !finite(&[p.lat_deg, p.lon_deg, p.alt_m]) {
@@ -127,7 +146,7 @@ pub fn geo_txt(records: &[CaptureRecord]) -> (String, Vec<(u64, Skip)>) {
         }
         out += &format!("{name} {:.9} {:.9} {:.3}", p.lon_deg, p.lat_deg, p.alt_m);
         let (yaw, pitch, roll) = odm_ypr_deg(&r.attitude);
-        if finite(&[yaw, pitch, roll]) {
+        if angles && finite(&[yaw, pitch, roll]) {
             out += &format!(" {yaw:.4} {pitch:.4} {roll:.4}");
         }
         out.push('\n');
@@ -196,11 +215,22 @@ pub fn rows(m: &DMat4) -> [[f64; 4]; 4] {
 /// The transforms of the records with an image, a pose and intrinsics; `None`
 /// when there is none (nerfstudio needs intrinsics). Also returns the records left out.
 pub fn transforms(records: &[CaptureRecord]) -> (Option<NerfTransforms>, Vec<(u64, Skip)>) {
+    transforms_with(records, &External::new())
+}
+
+/// [`transforms`]; the captures in `external` are skipped as [`Skip::ExternalCamera`].
+pub fn transforms_with(
+    records: &[CaptureRecord],
+    external: &External,
+) -> (Option<NerfTransforms>, Vec<(u64, Skip)>) {
     let mut skipped = Vec::new();
     let mut file_intr: Option<NerfIntrinsics> = None;
     let mut frames = Vec::new();
     for r in records {
         let frame = (|| {
+            if external.contains_key(&r.seq) {
+                return Err(Skip::ExternalCamera);
+            }
             let name = image_of(r)?;
             let intr = NerfIntrinsics::from(r.intrinsics.ok_or(Skip::NoIntrinsics)?);
             if !finite(&[intr.fl_x, intr.cx, intr.cy]) || intr.fl_x <= 0.0 {
@@ -256,9 +286,18 @@ pub fn write_exports<S: CaptureStore + ?Sized>(
     store: &mut S,
     records: &[CaptureRecord],
 ) -> Result<ExportSummary, StoreError> {
-    let (geo, geo_skipped) = geo_txt(records);
+    write_exports_with(store, records, &External::new())
+}
+
+/// [`write_exports`] with an external camera's pictures ([`geo_txt_with`]).
+pub fn write_exports_with<S: CaptureStore + ?Sized>(
+    store: &mut S,
+    records: &[CaptureRecord],
+    external: &External,
+) -> Result<ExportSummary, StoreError> {
+    let (geo, geo_skipped) = geo_txt_with(records, external);
     store.write_export(GEO_TXT, geo.as_bytes())?;
-    let (t, transforms_skipped) = transforms(records);
+    let (t, transforms_skipped) = transforms_with(records, external);
     let transform_frames = match t {
         Some(t) => {
             let mut json =
@@ -289,6 +328,21 @@ pub struct FlightExport {
     /// Images the manifest lists that are not in the directory (left out of the
     /// exports, skipped as `no_image`).
     pub missing_images: Vec<String>,
+    /// Captures an external camera took (`capture::external::is_external`): their
+    /// pictures are on the camera's card, not here.
+    pub external_captures: usize,
+}
+
+/// Why [`export_flight_with_camera`] wrote nothing.
+#[derive(Debug, thiserror::Error)]
+pub enum ExportError {
+    #[error(transparent)]
+    Store(#[from] StoreError),
+    #[error("{}: {source}", dir.display())]
+    Pair {
+        dir: std::path::PathBuf,
+        source: PairError,
+    },
 }
 
 /// A flight directory's exports written from its manifest's complete lines, as
@@ -298,6 +352,38 @@ pub struct FlightExport {
 /// removed, `InUse` while another process holds it); a path without a manifest is
 /// an error, not made a flight directory.
 pub fn export_flight(dir: &Path) -> Result<FlightExport, StoreError> {
+    let (mut store, m) = open_flight(dir)?;
+    write_flight(&mut store, dir, m, &External::new())
+}
+
+/// [`export_flight`], with an external camera's pictures (read from its card by
+/// [`read_camera_dir`](super::external::read_camera_dir)) paired with the captures
+/// it took and named on their `geo.txt` lines. Nothing is written when they
+/// cannot be paired.
+pub fn export_flight_with_camera(
+    dir: &Path,
+    camera: &CameraDir,
+) -> Result<(FlightExport, Pairing), ExportError> {
+    let (mut store, m) = open_flight(dir)?;
+    let triggers: Vec<Trigger> = m
+        .records
+        .iter()
+        .filter(|r| is_external(r))
+        .map(Trigger::of)
+        .collect();
+    let pairing = pair(&triggers, &camera.images).map_err(|source| ExportError::Pair {
+        dir: camera.dir.clone(),
+        source,
+    })?;
+    let external: External = pairing
+        .pairs
+        .iter()
+        .map(|&(seq, i)| (seq, camera.images[i].name.clone()))
+        .collect();
+    Ok((write_flight(&mut store, dir, m, &external)?, pairing))
+}
+
+fn open_flight(dir: &Path) -> Result<(DirStore, Manifest), StoreError> {
     let manifest = dir.join(MANIFEST);
     if !manifest.is_file() {
         return Err(StoreError::Io {
@@ -305,8 +391,17 @@ pub fn export_flight(dir: &Path) -> Result<FlightExport, StoreError> {
             source: std::io::ErrorKind::NotFound.into(),
         });
     }
-    let mut store = DirStore::open(dir)?;
+    let store = DirStore::open(dir)?;
     let m = parse_manifest(&store.manifest_bytes()?);
+    Ok((store, m))
+}
+
+fn write_flight(
+    store: &mut DirStore,
+    dir: &Path,
+    m: Manifest,
+    external: &External,
+) -> Result<FlightExport, StoreError> {
     // The manifest lists an image only once it is in place; one missing since (a
     // card copied in part) is named, and left out of the exports as a capture
     // without an image: a reconstruction tool stops at a file it cannot open.
@@ -322,13 +417,14 @@ pub fn export_flight(dir: &Path) -> Result<FlightExport, StoreError> {
             r
         })
         .collect();
-    let exports = write_exports(&mut store, &present)?;
+    let exports = write_exports_with(store, &present, external)?;
     Ok(FlightExport {
         records: m.records.len(),
         recovered_bytes: store.recovered_bytes(),
         bad_lines: m.bad_lines,
         exports,
         missing_images,
+        external_captures: m.records.iter().filter(|r| is_external(r)).count(),
     })
 }
 

@@ -1,10 +1,12 @@
 //! The capture log of one flight: images, `manifest.jsonl` and the exports
-//! (`geo.txt`, `transforms.json`, EXIF GPS, `telemetry.tlog`). Records and encoders
-//! are pure; [`store`] is the only part that touches files. Schema and guarantees:
+//! (`geo.txt`, `transforms.json`, EXIF GPS, `telemetry.tlog`), and an external
+//! camera's pictures paired with its captures ([`external`]). Records and encoders
+//! are pure; [`store`] is the only part that writes files. Schema and guarantees:
 //! docs/capture-log.md.
 
 pub mod exif;
 pub mod export;
+pub mod external;
 pub mod jpeg;
 pub mod record;
 pub mod store;
@@ -15,8 +17,8 @@ pub use exif::{
     ImageError,
 };
 pub use export::{
-    camera_to_world_gl, export_flight, geo_txt, transforms, write_exports, ExportSummary,
-    FlightExport,
+    camera_to_world_gl, export_flight, export_flight_with_camera, geo_txt, transforms,
+    write_exports, ExportError, ExportSummary, FlightExport,
 };
 pub use record::{
     image_file_name, Attitude, CameraIntrinsics, CaptureMode, CaptureRecord, ClosedLoopRecord,

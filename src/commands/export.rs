@@ -1,11 +1,16 @@
 //! `alfd export`: a flight directory's exports (`geo.txt`, `transforms.json`) written
 //! again from its manifest. The daemon writes them when it stops; a flight cut short
 //! (the battery, a SIGKILL, the board's power) has its images and manifest but none.
+//! With `--images`, an external camera's pictures (its card) are paired with the
+//! captures it took and named in `geo.txt`.
 
 use super::{bad, emit};
 use alfd::capture::export::{Skip, GEO_TXT, TRANSFORMS_JSON};
+use alfd::capture::external::{read_camera_dir, CameraDir, PairedBy, Pairing};
 use alfd::capture::store::MANIFEST;
-use alfd::capture::{export_flight, FlightExport, StoreError};
+use alfd::capture::{
+    export_flight, export_flight_with_camera, ExportError, FlightExport, StoreError,
+};
 use anyhow::Result;
 use std::collections::BTreeMap;
 use std::fmt::Write;
@@ -16,6 +21,11 @@ use std::process::ExitCode;
 pub struct Args {
     /// The flight directory (`capture.dir`'s `flight-NNN`), holding `manifest.jsonl`.
     flight_dir: PathBuf,
+    /// An external camera's pictures (its card's folder of JPEGs): each is paired
+    /// with the capture that triggered it (`camera_command`, `autopilot_distance`)
+    /// and named on that capture's `geo.txt` line. The folder is only read.
+    #[arg(long, value_name = "DIR")]
+    images: Option<PathBuf>,
 }
 
 pub fn run(a: Args) -> Result<ExitCode> {
@@ -26,16 +36,161 @@ pub fn run(a: Args) -> Result<ExitCode> {
             dir.display()
         )));
     }
-    let done = export_flight(&dir).map_err(|e| match e {
+    let in_use = |e: StoreError| match e {
         StoreError::InUse { .. } => bad(e.to_string()),
         e => anyhow::Error::new(e),
+    };
+    let Some(images) = a.images else {
+        let done = export_flight(&dir).map_err(in_use)?;
+        emit(&report(&dir, &done, true))?;
+        return Ok(ExitCode::SUCCESS);
+    };
+    if !images.is_dir() {
+        return Err(bad(format!(
+            "--images {}: not a directory: name the folder of the camera's pictures",
+            images.display()
+        )));
+    }
+    let camera = read_camera_dir(&images)?;
+    let (done, pairing) = export_flight_with_camera(&dir, &camera).map_err(|e| match e {
+        ExportError::Store(e) => in_use(e),
+        e @ ExportError::Pair { .. } => bad(format!("--images {e}")),
     })?;
-    emit(&report(&dir, &done))?;
+    let mut s = report(&dir, &done, false);
+    s += &camera_report(&camera, &pairing);
+    emit(&s)?;
     Ok(ExitCode::SUCCESS)
 }
 
-/// What was found and written, a line each.
-pub fn report(dir: &Path, done: &FlightExport) -> String {
+/// `1 picture`, `2 pictures`.
+fn count(n: usize, what: &str) -> String {
+    format!("{n} {what}{}", if n == 1 { "" } else { "s" })
+}
+
+/// Up to ten names, then how many more.
+fn some(names: &[&str]) -> String {
+    let mut s = names
+        .iter()
+        .take(10)
+        .copied()
+        .collect::<Vec<_>>()
+        .join(", ");
+    if names.len() > 10 {
+        let _ = write!(s, " and {} more", names.len() - 10);
+    }
+    s
+}
+
+/// What was found on the camera's card and how it was paired, a line each.
+pub fn camera_report(camera: &CameraDir, p: &Pairing) -> String {
+    let mut s = String::new();
+    let order = if camera.by_time {
+        "in the order of their EXIF capture times"
+    } else {
+        "in the order of their names (not every picture has an EXIF capture time)"
+    };
+    let _ = writeln!(
+        s,
+        "camera           {} JPEG pictures in {}, {order}",
+        camera.images.len(),
+        camera.dir.display()
+    );
+    if camera.other_files > 0 {
+        let _ = writeln!(
+            s,
+            "left alone       {} (raw, video, sidecars: not JPEG)",
+            count(camera.other_files, "other file")
+        );
+    }
+    if !camera.bad_names.is_empty() {
+        let names: Vec<&str> = camera.bad_names.iter().map(String::as_str).collect();
+        let _ = writeln!(
+            s,
+            "left out         {} whose names geo.txt cannot carry (a space or a control character): {}",
+            count(names.len(), "picture"),
+            some(&names)
+        );
+    }
+    let how = match p.by {
+        PairedBy::Order { checked: true } => "in order, and their times agree".to_owned(),
+        PairedBy::Order { checked: false } => {
+            "in order, unchecked: the pictures have no capture time".to_owned()
+        }
+        PairedBy::Time => match p.order_residual_s {
+            Some(worst) => format!(
+                "by time: in order, a picture would be {worst:.1} s from its capture's time"
+            ),
+            None => "by time: the counts differ".to_owned(),
+        },
+    };
+    let _ = writeln!(
+        s,
+        "paired           {} of {} captures {how}",
+        p.pairs.len(),
+        p.pairs.len() + p.unpaired_captures.len()
+    );
+    if let Some((median, worst)) = p.residual_s {
+        let _ = writeln!(
+            s,
+            "time residual    median {median:.3} s, worst {worst:.3} s (at most {:.2} s: the time stamps' step and the camera's delay)",
+            p.tolerance_s
+        );
+    }
+    if let Some(ahead) = p.camera_ahead_of_utc_s {
+        let _ = writeln!(s, "camera clock     {}", clock(ahead));
+    }
+    if !p.unpaired_images.is_empty() {
+        let names: Vec<&str> = p
+            .unpaired_images
+            .iter()
+            .map(|&i| camera.images[i].name.as_str())
+            .collect();
+        let _ = writeln!(
+            s,
+            "not paired       {} no capture triggered (left out): {}",
+            count(names.len(), "picture"),
+            some(&names)
+        );
+    }
+    if !p.unpaired_captures.is_empty() {
+        let seqs: Vec<String> = p.unpaired_captures.iter().map(u64::to_string).collect();
+        let seqs: Vec<&str> = seqs.iter().map(String::as_str).collect();
+        let _ = writeln!(
+            s,
+            "no picture       {} the camera has no picture for: seq {}",
+            count(seqs.len(), "capture"),
+            some(&seqs)
+        );
+    }
+    let _ = writeln!(
+        s,
+        "note             the camera's pictures keep their names and stay where they are; their geo.txt lines give positions and no angles (alfd does not know how the camera is mounted), and transforms.json has none of them (nor its lens)"
+    );
+    s
+}
+
+/// The camera's clock against UTC, in words.
+fn clock(ahead_s: f64) -> String {
+    if ahead_s.abs() < 1.0 {
+        return format!("within a second of UTC ({ahead_s:+.2} s)");
+    }
+    let word = if ahead_s > 0.0 { "ahead of" } else { "behind" };
+    let a = ahead_s.abs();
+    let (h, rest) = ((a / 3600.0).floor(), a % 3600.0);
+    let (m, sec) = ((rest / 60.0).floor(), rest % 60.0);
+    let text = if h > 0.0 {
+        format!("{h} h {m} min {sec:.1} s")
+    } else if m > 0.0 {
+        format!("{m} min {sec:.1} s")
+    } else {
+        format!("{sec:.2} s")
+    };
+    format!("{text} {word} UTC (its setting, or its time zone)")
+}
+
+/// What was found and written, a line each; `hint_images` says how to pair an
+/// external camera's pictures when the flight has some.
+pub fn report(dir: &Path, done: &FlightExport, hint_images: bool) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
@@ -72,6 +227,17 @@ pub fn report(dir: &Path, done: &FlightExport) -> String {
             skipped(&e.transforms_skipped)
         ),
     };
+    if hint_images
+        && done.external_captures > 0
+        && e.geo_skipped.iter().any(|(_, w)| *w == Skip::NoImage)
+    {
+        let _ = writeln!(
+            s,
+            "external camera  {} captures were taken by an external camera: pair its pictures with `alfd export {} --images DIR`",
+            done.external_captures,
+            dir.display()
+        );
+    }
     if !done.missing_images.is_empty() {
         let _ = writeln!(
             s,
