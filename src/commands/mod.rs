@@ -109,6 +109,46 @@ fn termination() -> impl std::future::Future<Output = ()> {
             _ = next(term, SignalKind::terminate()) => {}
             _ = next(int, SignalKind::interrupt()) => {}
         }
+        second_signal_quits();
+    }
+}
+
+/// After the first signal the handlers stay installed, so a second Ctrl-C would
+/// do nothing while the command winds down (`alfd sim` judging the flight against
+/// its truth, writing its report). A second SIGINT or SIGTERM ends the process at
+/// once, as an operator pressing Ctrl-C again expects. On a thread of its own with
+/// its own runtime: the one that heard the first signal may be gone by then (the
+/// simulated clock's). Whatever is on disk stays; an image or manifest line cut
+/// mid-write is recovered when the flight directory is next opened.
+fn second_signal_quits() {
+    use tokio::signal::unix::{signal, SignalKind};
+    let armed = std::thread::Builder::new()
+        .name("alfd-second-signal".into())
+        .spawn(|| {
+            let Ok(rt) = tokio::runtime::Builder::new_current_thread()
+                .enable_all()
+                .build()
+            else {
+                return;
+            };
+            rt.block_on(async {
+                let (Ok(mut term), Ok(mut int)) = (
+                    signal(SignalKind::terminate()),
+                    signal(SignalKind::interrupt()),
+                ) else {
+                    return;
+                };
+                eprintln!("alfd: stopping; interrupt again to quit at once");
+                tokio::select! {
+                    _ = term.recv() => {}
+                    _ = int.recv() => {}
+                }
+                eprintln!("alfd: second signal: quitting now, without the rest of the report");
+                std::process::exit(130);
+            });
+        });
+    if let Err(e) = armed {
+        tracing::warn!("a second Ctrl-C will not quit at once: {e}");
     }
 }
 
