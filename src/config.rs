@@ -151,6 +151,44 @@ pub struct RawQuality {
     pub views_per_point_min: Option<RawTarget>,
 }
 
+/// Quality targets given on a command line (`alfd estimate`, `alfd sim`) over a
+/// config's: a profile first replaces every target with its own, then each given
+/// target replaces that one. Checked with the rest of the estimator's parameters
+/// (`EstimatorParams::validate`) once applied.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct QualityPatch {
+    pub profile: Option<Profile>,
+    /// `Some(None)`: taken out of force.
+    pub parallax_px: Option<Option<f64>>,
+    pub forward_overlap: Option<Option<f64>>,
+    pub unseen_fraction_max: Option<f64>,
+    pub views_per_point_min: Option<u32>,
+}
+
+impl QualityPatch {
+    pub fn apply(&self, q: &mut Quality) {
+        if let Some(p) = self.profile {
+            *q = p.targets();
+        }
+        if let Some(v) = self.parallax_px {
+            q.parallax_px = v;
+        }
+        if let Some(v) = self.forward_overlap {
+            q.forward_overlap = v;
+        }
+        if let Some(v) = self.unseen_fraction_max {
+            q.unseen_fraction_max = v;
+        }
+        if let Some(v) = self.views_per_point_min {
+            q.views_per_point_min = v;
+        }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        *self == QualityPatch::default()
+    }
+}
+
 /// A target's value, or `false`: not in force (`configs/estimator.toml` says
 /// so of every `[quality]` key).
 #[derive(Debug, Clone, Copy)]

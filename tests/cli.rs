@@ -719,6 +719,41 @@ fn sim_refuses_by_flag_before_making_a_flight() {
         ],
     );
     assert!(!out.exists(), "a flight directory was made");
+    // A flag a given config sets is named with the key that sets it, and bad
+    // targets by what was given, before any directory is made.
+    let o = out.to_str().unwrap();
+    rejects(
+        &[
+            "sim",
+            "--config",
+            "configs/sim.toml",
+            "--fps",
+            "15",
+            "--out",
+            o,
+        ],
+        &["--fps: with --config configs/sim.toml, this is the config's [depth] fps"],
+    );
+    rejects(
+        &[
+            "sim",
+            "--config",
+            "configs/sim.toml",
+            "--unseen-fraction-max",
+            "7",
+            "--out",
+            o,
+        ],
+        &[
+            "the quality targets given over configs/sim.toml: quality.unseen_fraction_max",
+            "got 7",
+        ],
+    );
+    rejects(
+        &["sim", "--parallax-px", "-1", "--out", o],
+        &["the quality targets given: quality.parallax_px", "got -1"],
+    );
+    assert!(!out.exists(), "a flight directory was made");
     // An --out that is a file, or under one, is named by its flag.
     let file = dir.path().join("a-file");
     std::fs::write(&file, b"").unwrap();

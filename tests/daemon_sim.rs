@@ -8,6 +8,7 @@
 mod tools;
 
 use alfd::capture::{parse_exif_gps, read_manifest, tlog, CaptureMode, CaptureRecord};
+use alfd::config::QualityPatch;
 use alfd::core::attitude::body_to_ned;
 use alfd::core::Model;
 use alfd::daemon::sim::{
@@ -617,4 +618,77 @@ fn a_flight_of_another_model_is_judged_by_the_targets() {
         fixed.summary.fixed_spacing_m
     );
     assert_eq!(quality.summary.avoidable_violations, 0);
+}
+
+/// `alfd sim --config`: the config is the flight, rendered at its frame rate
+/// (15 fps here: the flags' 30 ticked the renders and set the opportunity step
+/// beside it), while the command line's model and targets go over it (they were
+/// silently dropped: `--model fixed` flew the config's quality model).
+#[test]
+fn a_given_config_flies_as_written_with_the_command_lines_model_and_targets() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("alfd.toml");
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/tower.toml");
+    std::fs::write(
+        &config,
+        format!(
+            r#"[mavlink]
+address = "serial:/dev/null:921600"
+[sim]
+pose = "truth"
+scene = "{scene}"
+[depth]
+source = "synthetic"
+width = 160
+height = 120
+fps = 15.0
+scale_m = 0.01
+max_range_m = 300.0
+[camera]
+source = "synthetic"
+width = 160
+height = 120
+fps = 15.0
+[trigger]
+fallback_spacing_m = 1.0
+[capture]
+dir = "unused"
+mode = "frame"
+"#
+        ),
+    )
+    .unwrap();
+    let a = SimArgs {
+        config: Some(config),
+        model: Some(Model::Fixed),
+        quality: QualityPatch {
+            parallax_px: Some(Some(3.0)),
+            ..QualityPatch::default()
+        },
+        speed_mps: Some(6.0),
+        ..args(&dir.path().join("out"), CaptureMode::Frame)
+    };
+    let out = run_sim_on_simulated_time(a, SimHooks::default(), std::future::pending())
+        .expect("the sim runs");
+    // A frame's way at the config's 15 fps: 6 m/s / 15.
+    assert!(
+        (out.summary.step_limit_m - 0.4).abs() < 1e-9,
+        "{}",
+        out.summary.step_limit_m
+    );
+    let judged = out.summary.judged_by.as_deref().expect("a judged-by line");
+    assert!(
+        judged.starts_with("the lightfield targets (parallax 3 px")
+            && judged.ends_with("the fixed model flew"),
+        "{judged}"
+    );
+    let records = read_manifest(&out.flight_dir.join("manifest.jsonl"))
+        .unwrap()
+        .records;
+    assert!(!records.is_empty());
+    assert!(
+        records.iter().all(|r| r.model == "fixed"),
+        "{:?}",
+        records[0].model
+    );
 }

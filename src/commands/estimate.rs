@@ -1,8 +1,8 @@
 //! `alfd estimate`: one estimate of the permissible spacing from one depth map.
 
-use super::{bad, emit, load_config};
+use super::{bad, emit, load_config, QualityFlags};
 use alfd::config::SourceKind;
-use alfd::core::{Decimation, Estimator, Intrinsics, Model, Profile, Quality};
+use alfd::core::{Decimation, Estimator, Intrinsics, Model};
 use alfd::depthio::{read_depth, DepthFormat, ReadOptions};
 use alfd::report::{estimate_json, estimate_text, InputInfo};
 use anyhow::{Context, Result};
@@ -42,24 +42,8 @@ pub struct Args {
     /// Override the sampling model (default: quality).
     #[arg(long, value_parser = super::model_parser())]
     model: Option<Model>,
-    /// Quality profile: lightfield (parallax 2 px, unseen 0.002, 2 views) or
-    /// mapping (80 % forward overlap, unseen 0.002, 3 views); the flags below override it.
-    #[arg(long, value_parser = super::profile_parser())]
-    profile: Option<Profile>,
-    /// Largest disparity range per capture step, px ("off": not in force).
-    #[arg(long)]
-    parallax_px: Option<String>,
-    /// Least forward overlap at the nearest depth, 0 to 0.99 ("off": not in force).
-    #[arg(long)]
-    forward_overlap: Option<String>,
-    /// Largest fraction of an in-between view neither neighbouring capture sees,
-    /// 0.000001 to 1 ("off" or 1: not in force).
-    #[arg(long)]
-    unseen_fraction_max: Option<String>,
-    /// Captures every visible surface point must be in, 1 to 100 ("off" or 1:
-    /// seen once, the coverage bound).
-    #[arg(long)]
-    views_per_point_min: Option<String>,
+    #[command(flatten)]
+    quality: QualityFlags,
     /// Also compute SSPA (the single slanted plane).
     #[arg(long)]
     sspa: bool,
@@ -110,37 +94,7 @@ pub fn run(a: Args) -> Result<ExitCode> {
     if let Some(m) = a.model {
         p.model = m;
     }
-    if let Some(profile) = a.profile {
-        p.quality = profile.targets();
-    }
-    let target = |flag: &str, v: &str| -> Result<Option<f64>> {
-        if v == "off" {
-            return Ok(None);
-        }
-        v.parse::<f64>()
-            .map(Some)
-            .map_err(|_| bad(format!("--{flag} {v}: a number, or off")))
-    };
-    if let Some(v) = &a.parallax_px {
-        p.quality.parallax_px = target("parallax-px", v)?;
-    }
-    if let Some(v) = &a.forward_overlap {
-        p.quality.forward_overlap = target("forward-overlap", v)?;
-    }
-    if let Some(v) = &a.unseen_fraction_max {
-        p.quality.unseen_fraction_max =
-            target("unseen-fraction-max", v)?.unwrap_or(Quality::UNSEEN_OFF);
-    }
-    if let Some(v) = &a.views_per_point_min {
-        p.quality.views_per_point_min = match v.as_str() {
-            "off" => Quality::VIEWS_OFF,
-            v => v.parse().map_err(|_| {
-                bad(format!(
-                    "--views-per-point-min {v}: a whole number from 1 to 100, or off"
-                ))
-            })?,
-        };
-    }
+    a.quality.patch()?.apply(&mut p.quality);
     p.with_sspa |= a.sspa;
     if let Some(d) = &a.decimation {
         p.decimation = if d == "auto" {

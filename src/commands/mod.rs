@@ -14,8 +14,8 @@ pub mod run;
 pub mod sim;
 pub mod tradeoff;
 
-use alfd::config::Config;
-use alfd::core::{Model, Profile};
+use alfd::config::{Config, QualityPatch};
+use alfd::core::{Model, Profile, Quality};
 use anyhow::{Context, Result};
 use clap::builder::{PossibleValuesParser, TypedValueParser};
 use std::path::PathBuf;
@@ -157,6 +157,64 @@ fn second_signal_quits() {
 pub fn model_parser() -> impl TypedValueParser<Value = Model> {
     PossibleValuesParser::new(Model::ALL.map(Model::as_str))
         .try_map(|s| Model::parse(&s).ok_or_else(|| BadInput(format!("unknown model {s:?}"))))
+}
+
+/// The quality targets on a command line (`alfd estimate`, `alfd sim`), over
+/// the config's.
+#[derive(clap::Args, Debug, Default)]
+pub struct QualityFlags {
+    /// Quality profile: lightfield (parallax 2 px, unseen 0.002, 2 views) or
+    /// mapping (80 % forward overlap, unseen 0.002, 3 views); the flags below override it.
+    #[arg(long, value_parser = profile_parser())]
+    profile: Option<Profile>,
+    /// Largest disparity range per capture step, px ("off": not in force).
+    #[arg(long, allow_hyphen_values = true)]
+    parallax_px: Option<String>,
+    /// Least forward overlap at the nearest depth, 0 to 0.99 ("off": not in force).
+    #[arg(long, allow_hyphen_values = true)]
+    forward_overlap: Option<String>,
+    /// Largest fraction of an in-between view neither neighbouring capture sees,
+    /// 0.000001 to 1 ("off" or 1: not in force).
+    #[arg(long, allow_hyphen_values = true)]
+    unseen_fraction_max: Option<String>,
+    /// Captures every visible surface point must be in, 1 to 100 ("off" or 1:
+    /// seen once, the coverage bound).
+    #[arg(long, allow_hyphen_values = true)]
+    views_per_point_min: Option<String>,
+}
+
+impl QualityFlags {
+    /// The flags as a patch of the config's targets; a value that is not a
+    /// number (or `off`) is refused naming its flag. Ranges are checked once the
+    /// patch is applied, with the rest of the estimator's parameters.
+    pub fn patch(&self) -> Result<QualityPatch> {
+        let target = |flag: &str, v: &Option<String>| -> Result<Option<Option<f64>>> {
+            let Some(v) = v else { return Ok(None) };
+            if v == "off" {
+                return Ok(Some(None));
+            }
+            v.parse::<f64>()
+                .map(|x| Some(Some(x)))
+                .map_err(|_| bad(format!("--{flag} {v}: a number, or off")))
+        };
+        let views_per_point_min = match self.views_per_point_min.as_deref() {
+            None => None,
+            Some("off") => Some(Quality::VIEWS_OFF),
+            Some(v) => Some(v.parse().map_err(|_| {
+                bad(format!(
+                    "--views-per-point-min {v}: a whole number from 1 to 100, or off"
+                ))
+            })?),
+        };
+        Ok(QualityPatch {
+            profile: self.profile,
+            parallax_px: target("parallax-px", &self.parallax_px)?,
+            forward_overlap: target("forward-overlap", &self.forward_overlap)?,
+            unseen_fraction_max: target("unseen-fraction-max", &self.unseen_fraction_max)?
+                .map(|v| v.unwrap_or(Quality::UNSEEN_OFF)),
+            views_per_point_min,
+        })
+    }
 }
 
 /// `--profile`: the core's quality profiles by name.

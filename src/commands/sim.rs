@@ -1,10 +1,10 @@
 //! `alfd sim`: the daemon on the simulated autopilot over a synthetic scene,
 //! judged against the truth (feature `sim`).
 
-use super::{bad, emit, frame_size, runtime, termination};
+use super::{bad, emit, frame_size, runtime, termination, QualityFlags};
 use alfd::capture::CaptureMode;
 use alfd::config::SimPose;
-use alfd::core::{Model, Profile};
+use alfd::core::Model;
 use alfd::daemon::sim::{run_sim, run_sim_on_simulated_time, SimArgs, SimHooks, SimSweep};
 use anyhow::Result;
 use std::io::IsTerminal;
@@ -28,34 +28,39 @@ pub struct Args {
     /// for the built-in district).
     #[arg(long, allow_negative_numbers = true)]
     speed_mps: Option<f64>,
-    #[arg(long, default_value_t = 10.0, allow_negative_numbers = true)]
-    telemetry_hz: f64,
-    #[arg(long, default_value_t = 30.0, allow_negative_numbers = true)]
-    fps: f64,
-    #[arg(long, default_value_t = 640)]
-    width: usize,
-    #[arg(long, default_value_t = 480)]
-    height: usize,
-    /// How captures are taken.
-    #[arg(long, value_enum, default_value_t = CaptureMode::Frame)]
-    mode: CaptureMode,
-    /// The sampling model (default: quality).
+    /// Position and attitude stream rate, Hz [default: 10; with --config, its
+    /// [mavlink] position_hz and attitude_hz].
+    #[arg(long, allow_negative_numbers = true)]
+    telemetry_hz: Option<f64>,
+    /// Depth (and colour) frames per second [default: 30; with --config, its [depth] fps].
+    #[arg(long, allow_negative_numbers = true)]
+    fps: Option<f64>,
+    /// Frame width, px [default: 640; with --config, its [depth] width].
+    #[arg(long)]
+    width: Option<usize>,
+    /// Frame height, px [default: 480; with --config, its [depth] height].
+    #[arg(long)]
+    height: Option<usize>,
+    /// How captures are taken [default: frame; with --config, its [capture] mode].
+    #[arg(long, value_enum)]
+    mode: Option<CaptureMode>,
+    /// The sampling model (default: quality; over a --config's).
     #[arg(long, value_parser = super::model_parser())]
     model: Option<Model>,
-    /// Quality targets (default: lightfield).
-    #[arg(long, value_parser = super::profile_parser())]
-    profile: Option<Profile>,
+    #[command(flatten)]
+    quality: QualityFlags,
     /// Also measure each frame against the last capture ([trigger] closed_loop).
     #[arg(long)]
     closed_loop: bool,
     /// How the estimator sweeps the visibility term: every pixel of every
     /// frame, or the flight's defaults (a quarter of the lines a frame); the
-    /// truth sweeps every pixel either way.
-    #[arg(long, value_enum, default_value_t = SimSweep::EveryPixel)]
-    sweep: SimSweep,
-    /// Where the synthetic camera renders.
-    #[arg(long, value_enum, default_value_t = SimPose::Truth)]
-    pose: SimPose,
+    /// truth sweeps every pixel either way [default: every-pixel; with --config,
+    /// its [estimator] settings].
+    #[arg(long, value_enum)]
+    sweep: Option<SimSweep>,
+    /// Where the synthetic camera renders [default: truth; with --config, its [sim] pose].
+    #[arg(long, value_enum)]
+    pose: Option<SimPose>,
     /// Forward MAVLink to a ground station: udpout:HOST:PORT.
     #[arg(long)]
     gcs: Option<String>,
@@ -94,11 +99,50 @@ enum SimAutopilot {
 }
 
 pub fn run(a: Args) -> Result<ExitCode> {
-    let (model, profile) = (a.model, a.profile);
+    // A given config is the flight's: a flag it would silently override (or be
+    // overridden by) is refused by name, with the key that sets it.
+    if let Some(c) = &a.config {
+        let set = [
+            (
+                "--telemetry-hz",
+                a.telemetry_hz.is_some(),
+                "[mavlink] position_hz and attitude_hz",
+            ),
+            ("--fps", a.fps.is_some(), "[depth] fps and [camera] fps"),
+            (
+                "--width",
+                a.width.is_some(),
+                "[depth] width and [camera] width",
+            ),
+            (
+                "--height",
+                a.height.is_some(),
+                "[depth] height and [camera] height",
+            ),
+            ("--mode", a.mode.is_some(), "[capture] mode"),
+            (
+                "--sweep",
+                a.sweep.is_some(),
+                "[estimator] visibility_samples_max and visibility_interleave",
+            ),
+            ("--pose", a.pose.is_some(), "[sim] pose"),
+        ];
+        if let Some((flag, _, key)) = set.iter().find(|s| s.1) {
+            return Err(bad(format!(
+                "{flag}: with --config {}, this is the config's {key}: edit the config, or leave --config out",
+                c.display()
+            )));
+        }
+    }
+    let quality = a.quality.patch()?;
+    let model = a.model;
+    let telemetry_hz = a.telemetry_hz.unwrap_or(10.0);
+    let fps = a.fps.unwrap_or(30.0);
+    let (width, height) = (a.width.unwrap_or(640), a.height.unwrap_or(480));
     for (name, v, max) in [
         ("--speed-mps", a.speed_mps, 50.0),
-        ("--telemetry-hz", Some(a.telemetry_hz), 1000.0),
-        ("--fps", Some(a.fps), 240.0),
+        ("--telemetry-hz", Some(telemetry_hz), 1000.0),
+        ("--fps", Some(fps), 240.0),
     ] {
         let Some(v) = v else { continue };
         if !(v.is_finite() && v > 0.0 && v <= max) {
@@ -123,22 +167,22 @@ pub fn run(a: Args) -> Result<ExitCode> {
             )));
         }
     }
-    frame_size(a.width, a.height)?;
+    frame_size(width, height)?;
     let args = SimArgs {
         scene: a.scene,
         config: a.config,
         out: a.out,
         speed_mps: a.speed_mps,
-        telemetry_hz: a.telemetry_hz,
-        fps: a.fps,
-        width: a.width,
-        height: a.height,
-        mode: a.mode,
+        telemetry_hz,
+        fps,
+        width,
+        height,
+        mode: a.mode.unwrap_or(CaptureMode::Frame),
         model,
-        profile,
+        quality,
         closed_loop: a.closed_loop,
-        sweep: a.sweep,
-        pose: a.pose,
+        sweep: a.sweep.unwrap_or_default(),
+        pose: a.pose.unwrap_or(SimPose::Truth),
         gcs: a.gcs,
         progress: !a.no_progress && std::io::stderr().is_terminal(),
         length_m: a.length_m,

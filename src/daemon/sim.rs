@@ -6,7 +6,7 @@
 use super::devices::{intrinsics, scene_camera_pose};
 use super::run::{run, Devices, FrameSample, Frames, RunError, RunOptions, RunReport, SampleHook};
 use crate::capture::CaptureMode;
-use crate::config::{Config, SimPose};
+use crate::config::{Config, QualityPatch, SimPose};
 use crate::core::{EstimatorParams, Intrinsics, Model, Profile};
 use crate::link::{mono_ns, LinkHandle};
 use crate::notify::Notifier;
@@ -54,8 +54,9 @@ pub struct SimArgs {
     pub mode: CaptureMode,
     /// `None`: the quality model.
     pub model: Option<Model>,
-    /// The quality targets' profile (`None`: lightfield, the default).
-    pub profile: Option<Profile>,
+    /// The quality targets over the config's (a profile, then each target given;
+    /// empty: the config's, or lightfield for the built-in one).
+    pub quality: QualityPatch,
     /// `[trigger] closed_loop`: also measure against the last capture.
     pub closed_loop: bool,
     /// How the estimator sweeps the visibility term.
@@ -169,7 +170,7 @@ impl Default for SimArgs {
             height: 480,
             mode: CaptureMode::Frame,
             model: None,
-            profile: None,
+            quality: QualityPatch::default(),
             closed_loop: false,
             sweep: SimSweep::EveryPixel,
             pose: SimPose::Truth,
@@ -260,7 +261,8 @@ fn sim_config_text(a: &SimArgs, scene_path: &Path, flight_dir: &Path, scene: &Sc
         CaptureMode::Command => "command",
     };
     let model = a.model.unwrap_or(Model::Quality).as_str();
-    let profile = a.profile.unwrap_or_default().as_str();
+    let profile = a.quality.profile.unwrap_or_default().as_str();
+    let targets = quality_lines(&a.quality);
     let closed_loop = a.closed_loop;
     let pose = match a.pose {
         SimPose::Truth => "truth",
@@ -304,7 +306,7 @@ max_range_m = {range}
 
 [quality]
 profile = "{profile}"
-
+{targets}
 [estimator]
 {sweep}# The sweep's lines on every core of the bench: the same estimate, sooner.
 threads = {threads}
@@ -351,6 +353,28 @@ visibility_interleave = 1
     )
 }
 
+/// The `[quality]` lines of the targets given over the profile.
+fn quality_lines(q: &QualityPatch) -> String {
+    let target = |key: &str, v: Option<f64>| match v {
+        Some(x) => format!("{key} = {x:?}\n"),
+        None => format!("{key} = false\n"),
+    };
+    let mut s = String::new();
+    if let Some(v) = q.parallax_px {
+        s += &target("parallax_px", v);
+    }
+    if let Some(v) = q.forward_overlap {
+        s += &target("forward_overlap", v);
+    }
+    if let Some(v) = q.unseen_fraction_max {
+        s += &target("unseen_fraction_max", Some(v));
+    }
+    if let Some(v) = q.views_per_point_min {
+        s += &format!("views_per_point_min = {v}\n");
+    }
+    s
+}
+
 /// Runs `alfd sim` to its summary.
 pub async fn run_sim(
     args: SimArgs,
@@ -390,7 +414,7 @@ pub fn run_sim_on_simulated_time(
 
 /// [`run_sim`] with hooks for tests.
 pub async fn run_sim_with(
-    args: SimArgs,
+    mut args: SimArgs,
     mut hooks: SimHooks,
     shutdown: impl std::future::Future<Output = ()> + Send,
 ) -> Result<SimOutcome, SimRunError> {
@@ -399,7 +423,7 @@ pub async fn run_sim_with(
     // through memory (`link::wire`); in real time, through a pty as on the bench.
     let simulated = crate::link::simulated();
     // Refused before anything is written.
-    if simulated && args.pose == SimPose::Telemetry {
+    if simulated && args.pose == SimPose::Telemetry && args.config.is_none() {
         return Err(setup(
             "--pose telemetry renders at the link's answer, which a flight on simulated time cannot wait for: add --real-time".into(),
         ));
@@ -424,9 +448,37 @@ pub async fn run_sim_with(
                     p.display()
                 )));
             }
+            // The command line over the config: the model, the targets and the
+            // closed loop.
+            let mut c = c;
+            if let Some(m) = args.model {
+                c.estimator.model = m;
+            }
+            args.quality.apply(&mut c.estimator.quality);
+            c.trigger.closed_loop |= args.closed_loop;
+            c.estimator.validate().map_err(|e| {
+                setup(format!(
+                    "the quality targets given over {}: {e}",
+                    p.display()
+                ))
+            })?;
+            if simulated && c.sim_pose == SimPose::Telemetry {
+                return Err(setup(format!(
+                    "--config {}: sim.pose \"telemetry\" renders at the link's answer, which a flight on simulated time cannot wait for: add --real-time",
+                    p.display()
+                )));
+            }
             Some(c)
         }
-        None => None,
+        None => {
+            // Written into the built-in config: checked here, by what was given,
+            // rather than as the built-in config's error.
+            let mut p = EstimatorParams::default();
+            args.quality.apply(&mut p.quality);
+            p.validate()
+                .map_err(|e| setup(format!("the quality targets given: {e}")))?;
+            None
+        }
     };
     // The scene flown: a given config's own, else --scene's, else the built-in one.
     let (scene_text, scene_name) = match (
@@ -496,6 +548,19 @@ pub async fn run_sim_with(
     if let Some(f) = hooks.on_config.take() {
         f(&mut config);
     }
+    // From here the flight is the config's: its frame rate ticks the renders, its
+    // capture mode sets the opportunity step, its pose source renders and its
+    // rates are firmware-sim's streams (a given config's, where they used to be
+    // the flags' defaults: 30 fps and 10 Hz beside a config's 15 fps).
+    args.fps = config.depth.fps;
+    args.mode = config.capture.mode;
+    args.pose = config.sim_pose;
+    let (position_hz, attitude_hz) = config
+        .link
+        .as_ref()
+        .map_or((args.telemetry_hz, args.telemetry_hz), |l| {
+            (l.position_hz, l.attitude_hz)
+        });
     let scene = Arc::new(scene);
 
     // The simulated autopilot: a line north over the scene's survey, or lanes
@@ -538,9 +603,9 @@ pub async fn run_sim_with(
     // flown so.
     sc.survey.wind_m = 0.0;
     sc.survey.wind_deg = 0.0;
-    sc.streams.attitude_quaternion = args.telemetry_hz;
-    sc.streams.global_position_int = args.telemetry_hz;
-    sc.streams.local_position_ned = args.telemetry_hz;
+    sc.streams.attitude_quaternion = attitude_hz;
+    sc.streams.global_position_int = position_hz;
+    sc.streams.local_position_ned = position_hz;
     if let Some(f) = &args.faults {
         sc.faults = f.clone();
     }
