@@ -377,9 +377,13 @@ pub fn estimate_text(
     if e.samples < min && e.decimation > coarsest {
         let _ = writeln!(
             s,
-            "               {} samples of the frame at decimation {}, fewer than the {min} its {} % percentile needs: \
+            "               {} of the frame at decimation {}, fewer than the {min} its {} % percentile needs: \
              the depth range is the extremes of a few samples (decimation {} at most for this frame)",
-            e.samples,
+            if e.samples == 1 {
+                "1 sample".to_owned()
+            } else {
+                format!("{} samples", e.samples)
+            },
             e.decimation,
             100.0 * params.percentile_low,
             coarsest

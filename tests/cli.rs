@@ -293,7 +293,7 @@ fn quality_targets_from_the_command_line() {
     // the text says so with the coarsest stride that keeps 200 (160/9 × 120/9).
     let s = text(&roof_estimate(&["--decimation", "256"]));
     assert!(
-        s.contains("1 samples of the frame at decimation 256, fewer than the 200 its 0.5 % percentile needs")
+        s.contains("1 sample of the frame at decimation 256, fewer than the 200 its 0.5 % percentile needs")
             && s.contains("(decimation 9 at most for this frame)"),
         "{s}"
     );
@@ -657,6 +657,52 @@ fn tradeoff_refuses_what_it_cannot_measure_by_name() {
             "--depth tests/data/buildings_320x240.png: no estimate at full resolution",
             "pitch 85.0 deg is beyond estimator.pitch_max_deg",
         ],
+    );
+}
+
+/// `alfd tradeoff --depth` reads a map at the scale `alfd estimate` would: a
+/// daemon config's camera (0.01 m per unit), a flag over it, and says which.
+#[test]
+fn tradeoff_reads_a_depth_map_at_the_cameras_scale() {
+    let run = |extra: &[&str]| {
+        let mut args = vec![
+            "tradeoff",
+            "--width",
+            "16",
+            "--height",
+            "12",
+            "--repeats",
+            "1",
+            "--depth",
+            "tests/data/buildings_320x240.png",
+        ];
+        args.extend_from_slice(extra);
+        text(&args)
+    };
+    let header = |out: &str| {
+        out.lines()
+            .find(|l| l.contains("reference frames"))
+            .map(str::to_owned)
+    };
+    let from_config = run(&["--config", "configs/sim.toml"]);
+    assert!(
+        header(&from_config)
+            .is_some_and(|h| h.contains("buildings_320x240.png (320x240, 0.01 m per unit)")),
+        "{from_config}"
+    );
+    let flag = run(&["--config", "configs/sim.toml", "--depth-scale-m", "0.002"]);
+    assert!(
+        header(&flag).is_some_and(|h| h.contains("(320x240, 0.002 m per unit)")),
+        "{flag}"
+    );
+    let default = run(&[]);
+    assert!(
+        header(&default).is_some_and(|h| h.contains("(320x240, 0.001 m per unit)")),
+        "{default}"
+    );
+    rejects(
+        &["tradeoff", "--depth-scale-m", "0"],
+        &["--depth-scale-m 0: must be a positive number"],
     );
 }
 

@@ -1,6 +1,7 @@
 //! `alfd tradeoff`: error against run time of every decimation level and model.
 
 use super::{bad, emit, frame_size, load_config};
+use alfd::config::SourceKind;
 use alfd::core::{Estimator, Intrinsics, Model};
 use alfd::depthio::{read_depth, DepthFormat, ReadOptions};
 use alfd::tradeoff;
@@ -28,6 +29,10 @@ pub struct Args {
     /// Horizontal field of view for --depth maps, degrees.
     #[arg(long, default_value_t = 69.0, allow_negative_numbers = true)]
     hfov_deg: f64,
+    /// Metres per unit of a 16-bit PNG --depth map (default: the --config's
+    /// [depth] scale_m, else 0.001, a RealSense's); a PFM holds metres.
+    #[arg(long, allow_negative_numbers = true)]
+    depth_scale_m: Option<f64>,
     /// Config file.
     #[arg(long)]
     config: Option<PathBuf>,
@@ -52,6 +57,18 @@ pub fn run(a: Args) -> Result<ExitCode> {
             a.pitch_deg
         )));
     }
+    // A map dumped from the daemon's own depth camera is read at its scale (as
+    // `alfd estimate` reads it): at 0.001 a 1 cm-per-unit map is ten times too near.
+    let camera = (cfg.depth.kind() != SourceKind::None).then_some(&cfg.depth);
+    let depth_scale_m = a
+        .depth_scale_m
+        .or(camera.map(|d| d.scale_m))
+        .unwrap_or(0.001);
+    if !(depth_scale_m.is_finite() && depth_scale_m > 0.0) {
+        return Err(bad(format!(
+            "--depth-scale-m {depth_scale_m}: must be a positive number of metres per unit"
+        )));
+    }
     let mut frames = tradeoff::reference_frames(a.width, a.height, 69.0);
     let mut described = format!(
         "{} reference frames of {}x{}",
@@ -72,6 +89,7 @@ pub fn run(a: Args) -> Result<ExitCode> {
         }
         let opts = ReadOptions {
             format,
+            scale_m: depth_scale_m,
             ..ReadOptions::default()
         };
         let image = read_depth(path, &opts).map_err(|e| bad(e.to_string()))?;
@@ -90,8 +108,13 @@ pub fn run(a: Args) -> Result<ExitCode> {
                 alfd::report::no_estimate_reason(why, &e, &cfg.estimator)
             )));
         }
+        let scale = if format == Some(DepthFormat::Pfm) {
+            String::new()
+        } else {
+            format!(", {depth_scale_m} m per unit")
+        };
         described.push_str(&format!(
-            ", {} ({}x{})",
+            ", {} ({}x{}{scale})",
             path.display(),
             image.width(),
             image.height()
@@ -115,8 +138,12 @@ pub fn run(a: Args) -> Result<ExitCode> {
     );
     emit(&format!(
         "Spacing error of each decimation level against full resolution, and time per frame \
-         ({described}, median of {} runs; score left out).\n\n{}",
-        a.repeats,
+         ({described}, {}; score left out).\n\n{}",
+        if a.repeats == 1 {
+            "one run".to_owned()
+        } else {
+            format!("median of {} runs", a.repeats)
+        },
         tradeoff::markdown(&frames, &rows)
     ))?;
     let mut mapping = cfg.estimator.clone();
