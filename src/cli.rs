@@ -38,7 +38,8 @@ enum Command {
     /// Error against run time of every decimation level and model.
     Tradeoff(commands::tradeoff::Args),
     /// Write a flight's exports (geo.txt, transforms.json) from its manifest: for a
-    /// flight that stopped without them (power cut, SIGKILL).
+    /// flight that stopped without them (power cut, SIGKILL), or with an external
+    /// camera's pictures paired with its captures (--images).
     Export(commands::export::Args),
     /// Ground-truth evaluation on the synthetic scenes: tables, JSON and plots.
     #[cfg(feature = "sim")]

@@ -590,6 +590,13 @@ fn an_external_cameras_pictures_are_paired_with_their_captures() {
         "{stderr}"
     );
     assert_eq!(fs::read_to_string(flight_dir.join(GEO_TXT)).unwrap(), geo);
+    // A card's root, whose pictures are in a folder of it: the folder is named.
+    let (status, _, stderr) = alfd_export_images(&flight_dir, tmp.path());
+    assert_eq!(status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("no JPEG picture there; its folders") && stderr.contains("DCIM"),
+        "{stderr}"
+    );
     let (status, _, stderr) = alfd_export_images(&flight_dir, &tmp.path().join("nowhere"));
     assert_eq!(status.code(), Some(2), "{stderr}");
     assert!(stderr.contains("not a directory"), "{stderr}");

@@ -52,6 +52,31 @@ pub fn run(a: Args) -> Result<ExitCode> {
         )));
     }
     let camera = read_camera_dir(&images)?;
+    if camera.images.is_empty() {
+        // A card's root (DCIM) holds folders of pictures, not pictures.
+        let folders: Vec<String> = std::fs::read_dir(&images)
+            .into_iter()
+            .flatten()
+            .flatten()
+            .map(|e| e.path())
+            .filter(|p| p.is_dir())
+            .filter(|p| {
+                read_camera_dir(p).is_ok_and(|c| !c.images.is_empty() || !c.bad_names.is_empty())
+            })
+            .map(|p| p.display().to_string())
+            .collect();
+        let mut msg = format!("--images {}: no JPEG picture there", images.display());
+        if !folders.is_empty() {
+            let mut folders = folders;
+            folders.sort();
+            let _ = write!(
+                msg,
+                "; its folders {} have some: name one (a flight's pictures in two folders, copy them into one)",
+                folders.join(", ")
+            );
+        }
+        return Err(bad(msg));
+    }
     let (done, pairing) = export_flight_with_camera(&dir, &camera).map_err(|e| match e {
         ExportError::Store(e) => in_use(e),
         e @ ExportError::Pair { .. } => bad(format!("--images {e}")),
