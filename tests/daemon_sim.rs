@@ -260,6 +260,39 @@ fn camera_command_mode_commands_the_camera_once_per_logged_capture() {
     assert_eq!(out.sim_events_lost, 0);
     assert_eq!(commanded, m.records.len());
     assert_eq!(out.report.camera_command_failures, 0);
+    camera_card_pairs_with_the_manifest(&out, &m.records);
+}
+
+/// firmware-sim's camera's card: one picture per picture it took, each paired
+/// with its capture and named in geo.txt at the capture's position, the camera's
+/// clock found an hour and 0.35 s ahead of UTC.
+fn camera_card_pairs_with_the_manifest(out: &SimOutcome, records: &[CaptureRecord]) {
+    let card = out.camera_card.as_ref().expect("a camera card");
+    assert_eq!(card.pictures, out.sim_triggers.len());
+    let (p, geo_lines) = card.paired.as_ref().expect("the card pairs");
+    assert_eq!(p.pairs.len(), records.len(), "{p:?}");
+    assert_eq!(*geo_lines, records.len());
+    let ahead = p.camera_ahead_of_utc_s.expect("the pictures have times");
+    // The camera fires when the command arrives, within a frame of the capture.
+    assert!((ahead - 3600.35).abs() < 0.1, "{ahead}");
+    let geo = std::fs::read_to_string(out.flight_dir.join("geo.txt")).unwrap();
+    let names: Vec<String> = std::fs::read_dir(&card.dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(names.len(), card.pictures);
+    for (line, &(seq, picture)) in geo.lines().skip(1).zip(&p.pairs) {
+        let r = &records[seq as usize - 1];
+        assert_eq!(r.seq, seq);
+        let want = format!(
+            "DSC{:05}.JPG {:.9} {:.9} {:.3}",
+            picture + 1,
+            r.position.lon_deg,
+            r.position.lat_deg,
+            r.position.alt_m
+        );
+        assert_eq!(line, want);
+    }
 }
 
 #[test]
@@ -290,6 +323,7 @@ fn autopilot_distance_mode_sets_the_distance_and_logs_the_autopilots_triggers() 
         assert_eq!(r.capture_mode, CaptureMode::AutopilotDistance);
         assert!(r.image.is_none());
     }
+    camera_card_pairs_with_the_manifest(&out, &m.records);
 }
 
 /// ArduPilot (`AP_Camera`) counts a new distance from its last picture: alfd

@@ -81,6 +81,9 @@ pub enum SimEvent {
     Capture {
         mono_ns: u64,
         seq: u32,
+        /// The vehicle at the picture's instant: where a camera's picture is
+        /// rendered from (`alfd sim`'s external camera card).
+        truth: Truth,
     },
     /// The EKF got its origin: GPS_GLOBAL_ORIGIN and HOME_POSITION went out.
     OriginSet {

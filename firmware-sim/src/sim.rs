@@ -884,7 +884,11 @@ impl Engine {
         self.send(io, &msg, mono_ns(), To::Both);
         let truth = self.shared.truth(mono);
         self.write_truth(why, Some(seq), truth);
-        let _ = self.events.send(SimEvent::Capture { mono_ns: mono, seq });
+        let _ = self.events.send(SimEvent::Capture {
+            mono_ns: mono,
+            seq,
+            truth,
+        });
         true
     }
 
@@ -934,6 +938,7 @@ impl Engine {
         let _ = self.events.send(SimEvent::Capture {
             mono_ns: mono,
             seq: index,
+            truth: tr,
         });
         true
     }

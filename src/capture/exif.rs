@@ -234,8 +234,19 @@ fn days_from_civil(y: i64, m: u32, d: u32) -> i64 {
 /// latitude, longitude, altitude, UTC time and date stamps). Without a time, no
 /// date or time tags.
 pub fn exif_app1(g: &ExifGps, width: u32, height: u32) -> Result<Vec<u8>, ExifError> {
+    app1(g, width, height, true)
+}
+
+/// [`exif_app1`] without the GPS IFD (its position ignored): what a camera with
+/// no GPS of its own writes, its capture time from its own clock
+/// (`g.time_unix_us`). `alfd sim`'s external camera card is written so.
+pub fn exif_app1_without_gps(g: &ExifGps, width: u32, height: u32) -> Vec<u8> {
+    app1(g, width, height, false).expect("without a position there is nothing to refuse")
+}
+
+fn app1(g: &ExifGps, width: u32, height: u32, with_gps: bool) -> Result<Vec<u8>, ExifError> {
     let ok = g.lat_deg.abs() <= 90.0 && g.lon_deg.abs() <= 180.0 && g.alt_m.is_finite();
-    if !ok {
+    if with_gps && !ok {
         return Err(ExifError::BadPosition {
             lat_deg: g.lat_deg,
             lon_deg: g.lon_deg,
@@ -260,13 +271,15 @@ pub fn exif_app1(g: &ExifGps, width: u32, height: u32) -> Result<Vec<u8>, ExifEr
     }
     ifd0.push(short(TAG_YCBCR_POSITIONING, 1));
     ifd0.push(long(TAG_EXIF_IFD, 0));
-    ifd0.push(long(TAG_GPS_IFD, 0));
+    if with_gps {
+        ifd0.push(long(TAG_GPS_IFD, 0));
+    }
 
     let mut exif = vec![raw(TAG_EXIF_VERSION, UNDEFINED, b"0232")];
     if let Some(s) = &stamp {
         exif.push(ascii(TAG_DATE_TIME_ORIGINAL, s));
     }
-    exif.extend([raw(TAG_COMPONENTS_CONFIGURATION, UNDEFINED, &[1, 2, 3, 0])]);
+    exif.push(raw(TAG_COMPONENTS_CONFIGURATION, UNDEFINED, &[1, 2, 3, 0]));
     // The milliseconds DateTimeOriginal cannot hold: a reconstruction tool that
     // orders or pairs pictures by time gets the capture's own.
     if let Some((.., ms)) = time {
@@ -312,7 +325,9 @@ pub fn exif_app1(g: &ExifGps, width: u32, height: u32) -> Result<Vec<u8>, ExifEr
     debug_assert_eq!(tiff.len(), exif_at);
     write_ifd(&mut tiff, &exif);
     debug_assert_eq!(tiff.len(), gps_at);
-    write_ifd(&mut tiff, &gps);
+    if with_gps {
+        write_ifd(&mut tiff, &gps);
+    }
 
     let mut app1 = EXIF_HEADER.to_vec();
     app1.extend_from_slice(&tiff);

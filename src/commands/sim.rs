@@ -2,6 +2,7 @@
 //! judged against the truth (feature `sim`).
 
 use super::{bad, emit, frame_size, runtime, termination, QualityFlags};
+use alfd::capture::external::PairedBy;
 use alfd::capture::CaptureMode;
 use alfd::config::SimPose;
 use alfd::core::Model;
@@ -255,6 +256,31 @@ pub fn run(a: Args) -> Result<ExitCode> {
             }
         ));
     }
+    if let Some(card) = &out.camera_card {
+        text.push_str(&format!(
+            "camera card     {} pictures by firmware-sim's camera in {}",
+            card.pictures,
+            card.dir.display()
+        ));
+        match &card.paired {
+            Ok((p, geo_lines)) => {
+                let how = match p.by {
+                    PairedBy::Order { checked: true } => "in order, their times agreeing",
+                    PairedBy::Order { checked: false } => "in order",
+                    PairedBy::Time => "by time",
+                };
+                let clock = p.camera_ahead_of_utc_s.map_or(String::new(), |s| {
+                    format!(", its clock {s:.2} s ahead of UTC")
+                });
+                text.push_str(&format!(
+                    "{clock}: {} of {} captures paired {how}; geo.txt names {geo_lines} (alfd export --images)\n",
+                    p.pairs.len(),
+                    p.pairs.len() + p.unpaired_captures.len(),
+                ));
+            }
+            Err(e) => text.push_str(&format!(": not paired: {e}\n")),
+        }
+    }
     if let Some(l) = &r.latency {
         text.push_str(&format!("answered        {l}\n"));
     }
@@ -272,7 +298,11 @@ pub fn run(a: Args) -> Result<ExitCode> {
         "images          {:.1} MB, telemetry.tlog {} messages, exports: geo.txt {} lines, transforms.json {} frames\n",
         out.image_bytes as f64 / 1e6,
         r.tlog_frames,
-        r.exports.as_ref().map_or(0, |e| e.geo_lines),
+        // The card's pictures, once paired, are geo.txt's lines.
+        match out.camera_card.as_ref().map(|c| &c.paired) {
+            Some(Ok((_, lines))) => *lines,
+            _ => r.exports.as_ref().map_or(0, |e| e.geo_lines),
+        },
         r.exports.as_ref().and_then(|e| e.transform_frames).unwrap_or(0),
     ));
     for (name, ok, line) in out.summary.targets() {

@@ -4,6 +4,8 @@
 //! between them; the tasks at the edges own the devices; `run` wires them.
 
 pub mod camera;
+#[cfg(feature = "sim")]
+pub mod camera_card;
 pub(crate) mod colour;
 pub mod coordinator;
 pub mod devices;

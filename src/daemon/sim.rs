@@ -214,6 +214,9 @@ pub struct SimOutcome {
     pub sim_stats: firmware_sim::SimStats,
     /// How the flight's estimator swept the visibility term ([`sweep_text`]).
     pub sweep: String,
+    /// In `camera_command` and `autopilot_distance`: firmware-sim's camera's
+    /// pictures, on a card in the flight directory ([`super::camera_card`]).
+    pub camera_card: Option<CameraCard>,
 }
 
 /// How an estimator with `p` sweeps the visibility term on `width × height`
@@ -627,6 +630,7 @@ pub async fn run_sim_with(
         let mut rx = sim.subscribe();
         tokio::spawn(async move {
             let (mut commands, mut triggers, mut lost) = (Vec::new(), Vec::new(), 0u64);
+            let mut pictures = Vec::new();
             loop {
                 match rx.recv().await {
                     Ok(firmware_sim::SimEvent::Received {
@@ -635,13 +639,18 @@ pub async fn run_sim_with(
                         command: Some(c),
                         ..
                     }) => commands.push((mono_ns, c)),
-                    Ok(firmware_sim::SimEvent::Capture { mono_ns, seq }) => {
-                        triggers.push((mono_ns, seq))
+                    Ok(firmware_sim::SimEvent::Capture {
+                        mono_ns,
+                        seq,
+                        truth,
+                    }) => {
+                        triggers.push((mono_ns, seq));
+                        pictures.push((mono_ns, truth));
                     }
                     Ok(_) => {}
                     Err(tokio::sync::broadcast::error::RecvError::Lagged(n)) => lost += n,
                     Err(tokio::sync::broadcast::error::RecvError::Closed) => {
-                        return (commands, triggers, lost)
+                        return (commands, triggers, lost, pictures)
                     }
                 }
             }
@@ -900,11 +909,18 @@ pub async fn run_sim_with(
         Ok(s) => s.shutdown().await,
         Err(_) => tracing::warn!("firmware-sim still referenced; left to stop with the process"),
     }
-    let (sim_commands, sim_triggers, sim_events_lost) =
+    let (sim_commands, sim_triggers, sim_events_lost, pictures) =
         match tokio::time::timeout(Duration::from_secs(2), watcher).await {
             Ok(Ok(r)) => r,
-            _ => (Vec::new(), Vec::new(), u64::MAX),
+            _ => (Vec::new(), Vec::new(), u64::MAX, Vec::new()),
         };
+    // An external camera's flight: its card, rendered, and paired with the
+    // manifest as `alfd export --images` pairs a real card.
+    let camera_card =
+        (config.capture.mode != CaptureMode::Frame && !pictures.is_empty()).then(|| {
+            let ci = super::devices::intrinsics(&config.camera).unwrap_or(intr);
+            camera_card(&flight_dir, &scene, ci, mount, &pictures)
+        });
     let sweep = sweep_text(&config.estimator, config.depth.width, config.depth.height);
     // Only a sweep's text ends in JUDGED: a model without the visibility term
     // (no frame sweeps a line) gets no count, rather than "0 of n".
@@ -925,7 +941,46 @@ pub async fn run_sim_with(
         sim_events_lost,
         sim_stats,
         sweep,
+        camera_card,
     })
+}
+
+/// firmware-sim's camera's card of a flight, and how it paired with the manifest.
+#[derive(Debug)]
+pub struct CameraCard {
+    pub dir: PathBuf,
+    pub pictures: usize,
+    /// The pairing and the `geo.txt` lines it gave, or why there was none.
+    pub paired: Result<(crate::capture::external::Pairing, usize), String>,
+}
+
+fn camera_card(
+    flight_dir: &Path,
+    scene: &Scene,
+    intrinsics: Intrinsics,
+    mount_pitch_rad: f64,
+    pictures: &[(u64, Truth)],
+) -> CameraCard {
+    use crate::capture::external::read_camera_dir;
+    let dir = flight_dir.join(super::camera_card::CARD_DIR);
+    let paired = super::camera_card::write_card(
+        flight_dir,
+        scene,
+        intrinsics,
+        mount_pitch_rad,
+        pictures,
+        crate::link::unix_us_at,
+    )
+    .and_then(|dir| read_camera_dir(&dir).map_err(|e| e.to_string()))
+    .and_then(|card| {
+        crate::capture::export_flight_with_camera(flight_dir, &card).map_err(|e| e.to_string())
+    })
+    .map(|(done, pairing)| (pairing, done.exports.geo_lines));
+    CameraCard {
+        dir,
+        pictures: pictures.len(),
+        paired,
+    }
 }
 
 /// What the truth judges a flight by: the quality model at the config's
