@@ -552,6 +552,25 @@ fn check_config_accepts_the_shipped_configs_and_names_bad_fields() {
             String::from_utf8_lossy(&out.stderr)
         );
     }
+    // What the daemon would do, defaults included, a line a section.
+    let said = text(&["check-config", "configs/rpi-realsense.toml"]);
+    for want in [
+        "link           serial:/dev/ttyAMA0:921600 as system 1 component 100",
+        "depth          V4L2 the device of serial 012345678901, card \"RealSense\" (Z16), 640x480 at 30 fps, 87 deg wide, 0.001 m per unit",
+        "camera         V4L2 the device of serial 012345678901 (YUYV), 640x480 at 30 fps, 69 deg wide",
+        "targets        lightfield profile: parallax 2 px, forward overlap off, unseen <= 0.002, views >= 2",
+        "decimation     2",
+        "trigger        at most 10 captures a second; 1 m without an estimate; closed loop off",
+        "capture        frames saved by alfd, into /var/lib/alfd/flights",
+    ] {
+        assert!(said.contains(want), "{want:?} not in\n{said}");
+    }
+    let estimator_only = text(&["check-config", "configs/estimator.toml"]);
+    assert!(!estimator_only.contains("link "), "{estimator_only}");
+    assert!(
+        estimator_only.contains("model          quality"),
+        "{estimator_only}"
+    );
     let dir = tempfile::tempdir().unwrap();
     let bad = dir.path().join("bad.toml");
     std::fs::write(&bad, "[sampling]\nocclusion_max = 3.0\n").unwrap();
