@@ -365,9 +365,18 @@ fn telemetry_tlog_holds_timestamped_frames_as_received() {
 
 /// `alfd export DIR`, its exit status and stdout, stderr.
 fn alfd_export(dir: &std::path::Path) -> (std::process::ExitStatus, String, String) {
+    alfd_export_with(dir, &[])
+}
+
+/// `alfd export DIR ARGS…`.
+fn alfd_export_with(
+    dir: &std::path::Path,
+    args: &[&std::ffi::OsStr],
+) -> (std::process::ExitStatus, String, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_alfd"))
         .arg("export")
         .arg(dir)
+        .args(args)
         .output()
         .unwrap();
     (
@@ -449,18 +458,7 @@ fn alfd_export_images(
     dir: &std::path::Path,
     camera: &std::path::Path,
 ) -> (std::process::ExitStatus, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_alfd"))
-        .arg("export")
-        .arg(dir)
-        .arg("--images")
-        .arg(camera)
-        .output()
-        .unwrap();
-    (
-        out.status,
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
+    alfd_export_with(dir, &["--images".as_ref(), camera.as_os_str()])
 }
 
 /// A picture as an external camera writes it: a JPEG whose EXIF holds the time
