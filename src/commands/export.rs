@@ -59,14 +59,17 @@ pub fn run(a: Args) -> Result<ExitCode> {
             .flatten()
             .flatten()
             .map(|e| e.path())
-            .filter(|p| p.is_dir())
-            .filter(|p| {
-                read_camera_dir(p).is_ok_and(|c| !c.images.is_empty() || !c.bad_names.is_empty())
-            })
+            .filter(|p| p.is_dir() && has_jpeg(p))
             .map(|p| p.display().to_string())
             .collect();
         let mut msg = format!("--images {}: no JPEG picture there", images.display());
-        if !folders.is_empty() {
+        if !camera.bad_names.is_empty() {
+            let _ = write!(
+                msg,
+                " whose name geo.txt can carry: rename the {} with a space or a control character",
+                camera.bad_names.len()
+            );
+        } else if !folders.is_empty() {
             let mut folders = folders;
             folders.sort();
             let _ = write!(
@@ -85,6 +88,19 @@ pub fn run(a: Args) -> Result<ExitCode> {
     s += &camera_report(&camera, &pairing);
     emit(&s)?;
     Ok(ExitCode::SUCCESS)
+}
+
+/// Whether a folder holds a file named as a JPEG (its listing only: a card's
+/// folders hold thousands).
+fn has_jpeg(dir: &Path) -> bool {
+    std::fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .any(|e| {
+            let name = e.file_name().to_string_lossy().to_ascii_lowercase();
+            name.ends_with(".jpg") || name.ends_with(".jpeg")
+        })
 }
 
 /// `1 picture`, `2 pictures`.
