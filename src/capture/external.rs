@@ -114,7 +114,7 @@ pub fn read_camera_dir(dir: &Path) -> Result<CameraDir, StoreError> {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Trigger {
     pub seq: u64,
-    /// The autopilot's boot clock, s: always there, and steady through a flight.
+    /// The autopilot's boot clock, s: always there, steady within one boot.
     pub boot_s: f64,
     /// UTC, s, when the flight knew it.
     pub unix_s: Option<f64>,
@@ -146,8 +146,9 @@ pub struct Pairing {
     pub by: PairedBy,
     /// (capture sequence number, index into the pictures), in capture order.
     pub pairs: Vec<(u64, usize)>,
-    /// The camera's clock minus the autopilot's boot clock, s (median over the
-    /// pairs); `None` when the pictures have no time.
+    /// The camera's clock minus the captures' (UTC when every capture knew it
+    /// and it advances, else the autopilot's boot clock), s, median over the
+    /// pairs; `None` when the pictures have no time.
     pub offset_s: Option<f64>,
     /// The camera's clock minus UTC, s (median over the pairs whose capture knew
     /// UTC): its setting's error or its time zone.
@@ -203,6 +204,15 @@ pub fn pair(triggers: &[Trigger], images: &[CameraImage]) -> Result<Pairing, Pai
         why,
     };
 
+    // The captures' times on UTC when every one has it and it advances: an
+    // autopilot rebooted in flight starts its boot clock again, UTC goes on.
+    // Else on the boot clock.
+    let utc: Option<Vec<f64>> = triggers.iter().map(|c| c.unix_s).collect();
+    let clock: Vec<f64> = match utc.filter(|u| u.windows(2).all(|w| w[1] > w[0])) {
+        Some(u) => u,
+        None => triggers.iter().map(|c| c.boot_s).collect(),
+    };
+
     let mut order_disagrees = None;
     if n == m {
         let pairs: Vec<(usize, usize)> = (0..n).map(|k| (k, k)).collect();
@@ -210,6 +220,7 @@ pub fn pair(triggers: &[Trigger], images: &[CameraImage]) -> Result<Pairing, Pai
             return Ok(finish(
                 PairedBy::Order { checked: false },
                 triggers,
+                &clock,
                 None,
                 &pairs,
                 tolerance_s,
@@ -219,6 +230,7 @@ pub fn pair(triggers: &[Trigger], images: &[CameraImage]) -> Result<Pairing, Pai
         let p = finish(
             PairedBy::Order { checked: true },
             triggers,
+            &clock,
             Some(t),
             &pairs,
             tolerance_s,
@@ -236,10 +248,10 @@ pub fn pair(triggers: &[Trigger], images: &[CameraImage]) -> Result<Pairing, Pai
             "the pictures carry no capture time (EXIF DateTimeOriginal) to pair them by".into(),
         ));
     };
-    let boot: Vec<f64> = triggers.iter().map(|c| c.boot_s).collect();
+    let boot = &clock;
     if let Some(w) = boot.windows(2).position(|w| w[1] <= w[0]) {
         return Err(unpairable(format!(
-            "the autopilot's clock does not advance from capture {} to {} (a reboot in flight?), so their times cannot be compared with the pictures'",
+            "the autopilot's clock does not advance from capture {} to {} (a reboot in flight, before UTC was known?), so their times cannot be compared with the pictures'",
             triggers[w].seq,
             triggers[w + 1].seq
         )));
@@ -294,9 +306,9 @@ pub fn pair(triggers: &[Trigger], images: &[CameraImage]) -> Result<Pairing, Pai
         if tried.iter().any(|x| (x.offset_s - c).abs() <= width) {
             continue;
         }
-        let first = greedy(&t, &boot, c, tolerance_s);
+        let first = greedy(&t, boot, c, tolerance_s);
         let refined = c + median(first.iter().map(|&(i, j)| t[i] - c - boot[j]).collect());
-        let pairs = greedy(&t, &boot, refined, tolerance_s);
+        let pairs = greedy(&t, boot, refined, tolerance_s);
         let spread: f64 = pairs
             .iter()
             .map(|&(i, j)| (t[i] - refined - boot[j]).abs())
@@ -343,6 +355,7 @@ pub fn pair(triggers: &[Trigger], images: &[CameraImage]) -> Result<Pairing, Pai
     let mut p = finish(
         PairedBy::Time,
         triggers,
+        &clock,
         Some(&t),
         &best.pairs,
         tolerance_s,
@@ -403,6 +416,7 @@ fn median(mut xs: Vec<f64>) -> f64 {
 fn finish(
     by: PairedBy,
     triggers: &[Trigger],
+    clock: &[f64],
     times: Option<&Vec<f64>>,
     pairs: &[(usize, usize)],
     tolerance_s: f64,
@@ -410,15 +424,10 @@ fn finish(
 ) -> Pairing {
     let (offset_s, camera_ahead_of_utc_s, residual_s) = match times {
         Some(t) if !pairs.is_empty() => {
-            let offset = median(
-                pairs
-                    .iter()
-                    .map(|&(i, j)| t[i] - triggers[j].boot_s)
-                    .collect(),
-            );
+            let offset = median(pairs.iter().map(|&(i, j)| t[i] - clock[j]).collect());
             let res: Vec<f64> = pairs
                 .iter()
-                .map(|&(i, j)| (t[i] - offset - triggers[j].boot_s).abs())
+                .map(|&(i, j)| (t[i] - offset - clock[j]).abs())
                 .collect();
             let worst = res.iter().copied().fold(0.0, f64::max);
             let utc: Vec<f64> = pairs
@@ -544,6 +553,37 @@ mod tests {
             assert_eq!(imgs[i].name, format!("DSC{seq:05}.JPG"));
         }
         assert!((p.camera_ahead_of_utc_s.unwrap() - 42.08).abs() < 1e-6);
+    }
+
+    /// An autopilot rebooted in flight starts its boot clock again; the
+    /// captures' UTC goes on, and the pictures pair by it. Before UTC is known
+    /// (a capture without it) the boot clock's step back is refused by name.
+    #[test]
+    fn an_autopilot_rebooted_in_flight_pairs_by_utc() {
+        let utc = uneven(20);
+        let mut trig = triggers(&utc);
+        for (k, t) in trig.iter_mut().enumerate() {
+            t.unix_s = Some(1.78e9 + utc[k]);
+            // Rebooted after capture 10: its boot clock restarts at 5 s.
+            t.boot_s = if k < 10 {
+                utc[k]
+            } else {
+                utc[k] - utc[10] + 5.0
+            };
+        }
+        // The camera missed capture 3: the counts differ, so time decides.
+        let imgs: Vec<_> = (0..20)
+            .filter(|&k| k != 2)
+            .map(|k| image(k, Some(1.78e9 + utc[k] + 60.0), 0.01))
+            .collect();
+        let p = pair(&trig, &imgs).unwrap();
+        assert_eq!(p.by, PairedBy::Time);
+        assert_eq!(p.pairs.len(), 19);
+        assert_eq!(p.unpaired_captures, vec![3]);
+        assert!((p.offset_s.unwrap() - 60.0).abs() < 1e-6);
+        trig[0].unix_s = None;
+        let e = pair(&trig, &imgs).unwrap_err().to_string();
+        assert!(e.contains("does not advance from capture 10 to 11"), "{e}");
     }
 
     #[test]
