@@ -9,6 +9,7 @@ use std::future::Future;
 use std::pin::pin;
 use std::task::{Context, Poll, Waker};
 
+use alfd::capture::exif::parse_exif_taken;
 use alfd::capture::{
     exif_app1, find_exif_app1, geo_txt, parse_exif_gps, parse_manifest, tlog, transforms,
     CaptureRecord, ExifGps,
@@ -1028,14 +1029,25 @@ proptest! {
         let sane = |p: &alfd::capture::exif::ParsedExif| {
             (-90.0..=90.0).contains(&p.lat_deg) && (-180.0..=180.0).contains(&p.lon_deg) && p.alt_m.is_finite()
         };
-        if let Ok(p) = parse_exif_gps(&apply(&app1, &edits)) {
+        // A capture time read back is a time: finite, its step a power of ten up to 1 s.
+        let timely = |t: &alfd::capture::exif::TakenAt| {
+            t.clock_s.is_finite() && t.resolution_s > 0.0 && t.resolution_s <= 1.0
+        };
+        let edited = apply(&app1, &edits);
+        if let Ok(p) = parse_exif_gps(&edited) {
             prop_assert!(sane(&p), "{:?}", p);
+        }
+        if let Some(t) = parse_exif_taken(&edited) {
+            prop_assert!(timely(&t), "{:?}", t);
         }
         let jpeg = alfd::capture::encode_jpeg(&[0; 8 * 8 * 3], 8, 8, 50, Some(app1)).unwrap();
         let jpeg = apply(&jpeg, &edits);
         if let Some(seg) = find_exif_app1(&jpeg) {
             if let Ok(p) = parse_exif_gps(seg) {
                 prop_assert!(sane(&p), "{:?}", p);
+            }
+            if let Some(t) = parse_exif_taken(seg) {
+                prop_assert!(timely(&t), "{:?}", t);
             }
         }
     }

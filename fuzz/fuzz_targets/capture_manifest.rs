@@ -1,9 +1,11 @@
 //! What `alfd export` and a restarted capture writer read back from a flight directory:
 //! `manifest.jsonl` (`capture::parse_manifest`, then the exports built from its records),
 //! `telemetry.tlog` (`capture::tlog::parse`, `complete_prefix_len`) and EXIF GPS segments
-//! (`find_exif_app1`, `parse_exif_gps`). Input: the file's bytes, fed to every reader.
+//! (`find_exif_app1`, `parse_exif_gps`, and the capture time `parse_exif_taken` pairs an
+//! external camera's pictures by). Input: the file's bytes, fed to every reader.
 #![no_main]
 
+use alfd::capture::exif::parse_exif_taken;
 use alfd::capture::{
     find_exif_app1, geo_txt, parse_exif_gps, parse_manifest, tlog, transforms, CaptureRecord,
 };
@@ -52,6 +54,19 @@ fuzz_target!(|data: &[u8]| {
         assert!(
             g.lat_deg.abs() <= 90.0 && g.lon_deg.abs() <= 180.0 && g.alt_m.is_finite(),
             "{g:?}"
+        );
+    }
+    // A capture time read back is a time: finite, its step a power of ten up to 1 s.
+    for t in [
+        find_exif_app1(data).and_then(parse_exif_taken),
+        parse_exif_taken(data),
+    ]
+    .into_iter()
+    .flatten()
+    {
+        assert!(
+            t.clock_s.is_finite() && t.resolution_s > 0.0 && t.resolution_s <= 1.0,
+            "{t:?}"
         );
     }
 });
