@@ -138,12 +138,14 @@ fn second_signal_quits() {
                 ) else {
                     return;
                 };
-                eprintln!("alfd: stopping; interrupt again to quit at once");
+                // Through the log, in its format: `--log-format json` is one
+                // object a line, and a reader of it parses every line.
+                tracing::info!("stopping; interrupt again to quit at once");
                 tokio::select! {
                     _ = term.recv() => {}
                     _ = int.recv() => {}
                 }
-                eprintln!("alfd: second signal: quitting now, without the rest of the report");
+                tracing::warn!("second signal: quitting now, without the rest of the report");
                 std::process::exit(130);
             });
         });
