@@ -33,14 +33,16 @@ struct Flight {
 }
 
 /// firmware-sim in the ArduPilot profile (origin after 4 s, on the ground for 5 s, a 3 s
-/// climb to 60 m, then a 150 m line), and `alfd run` on its pty with `mode`.
-async fn fly(mode: &str) -> Flight {
+/// climb to 60 m, then a 150 m line) with its camera `backend`, and `alfd run` on its pty
+/// with `mode`.
+async fn fly(mode: &str, backend: &str) -> Flight {
     let dir = tempfile::tempdir().unwrap();
-    let mut sc = SimConfig::from_toml(
+    let mut sc = SimConfig::from_toml(&format!(
         "autopilot = \"ardupilot\"\n\
          [vehicle]\norigin_delay_s = 4\nground_s = 5\nclimb_mps = 20\n\
-         [survey]\npattern = \"line\"\nlength_m = 150\nspeed_mps = 10\nwind_m = 0\nwind_deg = 0\n",
-    )
+         [survey]\npattern = \"line\"\nlength_m = 150\nspeed_mps = 10\nwind_m = 0\nwind_deg = 0\n\
+         [camera]\nbackend = \"{backend}\"\n",
+    ))
     .unwrap();
     sc.survey.altitude_m = ALTITUDE_M;
     sc.transport = firmware_sim::Transport::Pty {
@@ -127,7 +129,7 @@ fn lines(path: &Path) -> usize {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn ardupilot_late_origin_and_take_off_frame_mode() {
-    let f = fly("frame").await;
+    let f = fly("frame", "mavlink_cam_v2").await;
     f.until("10 captures", |m, _| lines(m) >= 10).await;
     let (records, log, ms, f) = f.land().await;
     let origin = ms.origin.expect("the origin was set");
@@ -190,14 +192,43 @@ async fn ardupilot_late_origin_and_take_off_frame_mode() {
 /// picture), so after the first the photos are the distance trigger's own.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn ardupilot_distance_trigger_through_the_mavlink_camera() {
-    let f = fly("autopilot_distance").await;
+    distance_trigger_photos_are_logged_where_taken("mavlink_cam_v2", 0).await;
+}
+
+/// With a servo- or relay-triggered camera (CAM1_TYPE 1 or 2, the commonest survey set-up)
+/// ArduPilot says each picture by CAMERA_FEEDBACK alone: each must become a manifest line,
+/// where the vehicle was at the picture (its GPS time stamp mapped through SYSTEM_TIME).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn ardupilot_distance_trigger_through_a_servo_camera() {
+    distance_trigger_photos_are_logged_where_taken("servo", 5).await;
+}
+
+/// An `autopilot_distance` flight on ArduPilot with its camera `backend`: at least five
+/// photos logged, none more than the camera took, each where the vehicle was (0.5 m); and
+/// `feedbacks` of them, at least, known by CAMERA_FEEDBACK alone (from the daemon's log).
+async fn distance_trigger_photos_are_logged_where_taken(backend: &str, feedbacks: u64) {
+    let f = fly("autopilot_distance", backend).await;
     f.until("5 photos by the autopilot", |_, m| m.captures >= 5)
         .await;
     // Let the last command's capture be written.
     f.until("5 captures logged", |m, _| lines(m) >= 5).await;
-    let (records, _log, ms, f) = f.land().await;
+    let (records, log, ms, f) = f.land().await;
     let in_air = ms.in_air.expect("in the air");
     assert!(records.len() as u64 >= 5);
+    let said: u64 = log
+        .iter()
+        .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+        .filter_map(|v| v["fields"]["autopilot_feedbacks"].as_u64())
+        .next_back()
+        .expect("the run's report in the log");
+    if feedbacks == 0 {
+        assert_eq!(
+            said, 0,
+            "MAVLinkCamV2's feedbacks are echoes of its commands"
+        );
+    } else {
+        assert!(said >= feedbacks && said == records.len() as u64, "{said}");
+    }
     assert!(
         records.len() as u64 <= ms.captures,
         "{} > {}",

@@ -340,6 +340,14 @@ fn autopilot_distance_on_ardupilot_shoots_only_at_the_distance() {
         out.report.trigger_distances_with_picture, 1,
         "only the first"
     );
+    // ArduPilot's servo camera says its pictures by CAMERA_FEEDBACK alone (no
+    // CAMERA_TRIGGER): every one was logged from it, placed by its GPS time.
+    assert!(out.report.autopilot_feedbacks > 0);
+    assert_eq!(
+        out.report.autopilot_feedbacks,
+        out.report.autopilot_triggers
+    );
+    assert_eq!(out.report.feedbacks_timed_on_arrival, 0);
 }
 
 /// An `autopilot_distance` flight of the tower line on `autopilot` at `speed_mps`, and what

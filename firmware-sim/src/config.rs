@@ -96,6 +96,10 @@ pub enum CameraBackend {
     /// CAMERA from component 100), reads its CAMERA_INFORMATION, then sends it
     /// MAV_CMD_IMAGE_START_CAPTURE per picture and reports CAMERA_FEEDBACK; no CAMERA_TRIGGER.
     MavlinkCamV2,
+    /// ArduPilot's servo or relay camera (CAM1_TYPE = 1 or 2): it pulses an output, which
+    /// always succeeds, and reports each picture by CAMERA_FEEDBACK alone (no CAMERA_TRIGGER,
+    /// no command to anyone). The commonest survey set-up on ArduPilot.
+    Servo,
 }
 
 /// The vehicle's life before the survey.
@@ -248,7 +252,7 @@ struct RawVehicle {
 #[derive(Deserialize, Default)]
 #[serde(deny_unknown_fields, default)]
 struct RawCamera {
-    /// "trigger" or "mavlink_cam_v2".
+    /// "trigger", "mavlink_cam_v2" or "servo" (also "relay").
     backend: Option<String>,
 }
 
@@ -575,10 +579,11 @@ impl SimConfig {
             None if ap => CameraBackend::MavlinkCamV2,
             None | Some("trigger") => CameraBackend::Trigger,
             Some("mavlink_cam_v2") => CameraBackend::MavlinkCamV2,
+            Some("servo" | "relay") => CameraBackend::Servo,
             Some(other) => {
                 return Err(bad(
                     "camera.backend",
-                    format!("`{other}`: expected trigger or mavlink_cam_v2"),
+                    format!("`{other}`: expected trigger, mavlink_cam_v2, servo or relay"),
                 ))
             }
         };

@@ -77,7 +77,8 @@ pub enum SimEvent {
         command: Option<u32>,
     },
     /// A picture was taken (distance trigger or capture command): a CAMERA_TRIGGER went out, or
-    /// with the MAVLinkCamV2 backend an IMAGE_START_CAPTURE to the camera and a CAMERA_FEEDBACK.
+    /// with the MAVLinkCamV2 backend an IMAGE_START_CAPTURE to the camera and a CAMERA_FEEDBACK,
+    /// or with the servo backend the CAMERA_FEEDBACK alone.
     Capture {
         mono_ns: u64,
         seq: u32,

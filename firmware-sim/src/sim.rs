@@ -871,8 +871,26 @@ impl Engine {
 
     /// Takes a picture; false when none was taken (MAVLinkCamV2 without its camera).
     fn capture(&mut self, io: &Links, mono: u64, why: &str) -> bool {
-        if self.cfg.camera == CameraBackend::MavlinkCamV2 {
-            return self.capture_mavlink_cam(io, mono, why);
+        match self.cfg.camera {
+            CameraBackend::MavlinkCamV2 => return self.capture_mavlink_cam(io, mono, why),
+            CameraBackend::Servo => {
+                // ArduPilot's servo or relay backend: the pulse always goes out, and the
+                // picture is known to the world by its CAMERA_FEEDBACK alone.
+                let index = self.capture_seq + 1;
+                self.capture_seq = index;
+                let now = mono_ns();
+                let tr = self.shared.truth(mono);
+                let feedback = self.feedback(index, mono, now, &tr);
+                self.send(io, &feedback, now, To::Both);
+                self.write_truth(why, Some(index), tr);
+                let _ = self.events.send(SimEvent::Capture {
+                    mono_ns: mono,
+                    seq: index,
+                    truth: tr,
+                });
+                return true;
+            }
+            CameraBackend::Trigger => {}
         }
         self.capture_seq += 1;
         let seq = self.capture_seq;
@@ -916,8 +934,22 @@ impl Engine {
         self.send(io, &cmd, now, To::Only(Side::Main));
         self.capture_seq = index;
         let tr = self.shared.truth(mono);
+        let feedback = self.feedback(index, mono, now, &tr);
+        self.send(io, &feedback, now, To::Both);
+        self.write_truth(why, Some(index), tr);
+        let _ = self.events.send(SimEvent::Capture {
+            mono_ns: mono,
+            seq: index,
+            truth: tr,
+        });
+        true
+    }
+
+    /// ArduPilot's CAMERA_FEEDBACK for picture `index` taken at `mono` (sent at `now`): stamped
+    /// with GPS time (UNIX µs), the vehicle's place and attitude then, to every ground station.
+    fn feedback(&self, index: u32, mono: u64, now: u64, tr: &Truth) -> MavMessage {
         let unix_us = crate::clock::unix_us().saturating_sub(now.saturating_sub(mono) / 1000);
-        let feedback = MavMessage::CAMERA_FEEDBACK(CAMERA_FEEDBACK_DATA {
+        MavMessage::CAMERA_FEEDBACK(CAMERA_FEEDBACK_DATA {
             time_usec: unix_us,
             lat: (tr.lat_deg * 1e7).round() as i32,
             lng: (tr.lon_deg * 1e7).round() as i32,
@@ -932,15 +964,7 @@ impl Engine {
             cam_idx: 0,
             flags: CameraFeedbackFlags::CAMERA_FEEDBACK_PHOTO,
             completed_captures: 0,
-        });
-        self.send(io, &feedback, now, To::Both);
-        self.write_truth(why, Some(index), tr);
-        let _ = self.events.send(SimEvent::Capture {
-            mono_ns: mono,
-            seq: index,
-            truth: tr,
-        });
-        true
+        })
     }
 
     /// MAVLinkCamV2's discovery, from what the camera sends on the main link: a HEARTBEAT of

@@ -66,6 +66,13 @@ fn the_profile_sets_its_behaviours_and_explicit_keys_win() {
     .unwrap();
     assert_eq!(mixed.camera, CameraBackend::Trigger);
     assert_eq!(mixed.vehicle.ground, Duration::ZERO);
+    for name in ["servo", "relay"] {
+        let c = SimConfig::from_toml(&format!(
+            "autopilot = \"ardupilot\"\n[camera]\nbackend = \"{name}\"\n"
+        ))
+        .unwrap();
+        assert_eq!(c.camera, CameraBackend::Servo);
+    }
     let generic = SimConfig::default();
     assert_eq!(generic.camera, CameraBackend::Trigger);
     assert_eq!(generic.vehicle.origin_delay, Duration::ZERO);

@@ -79,8 +79,9 @@ pub struct Args {
     /// Whose behaviour firmware-sim copies where the capture depends on it:
     /// its HEARTBEAT and its distance trigger (generic: fires at the point;
     /// px4: a new distance shoots once, checked every 50 ms; ardupilot:
-    /// counted from the last picture, checked at 50 Hz). The flight itself is
-    /// the same.
+    /// counted from the last picture, checked at 50 Hz, each picture said by
+    /// CAMERA_FEEDBACK alone, as its servo or relay camera does). The flight
+    /// itself is the same.
     #[arg(long, value_enum, default_value_t = SimAutopilot::Generic)]
     autopilot: SimAutopilot,
     #[arg(long)]
@@ -287,11 +288,16 @@ pub fn run(a: Args) -> Result<ExitCode> {
     // The autopilot's own trigger: how often alfd had to move its distance.
     if r.trigger_distances_sent > 0 {
         text.push_str(&format!(
-            "trigger dist    {} DO_SET_CAM_TRIGG_DIST sent ({} also triggering once), {} acknowledged, {} autopilot triggers\n",
+            "trigger dist    {} DO_SET_CAM_TRIGG_DIST sent ({} also triggering once), {} acknowledged, {} autopilot triggers{}\n",
             r.trigger_distances_sent,
             r.trigger_distances_with_picture,
             r.trigger_distances_acked,
-            r.autopilot_triggers
+            r.autopilot_triggers,
+            match (r.autopilot_feedbacks, r.feedbacks_timed_on_arrival) {
+                (0, _) => String::new(),
+                (n, 0) => format!(" ({n} by CAMERA_FEEDBACK, placed by its GPS time)"),
+                (n, k) => format!(" ({n} by CAMERA_FEEDBACK, {k} placed at its arrival: no UTC from SYSTEM_TIME to map its GPS time)"),
+            }
         ));
     }
     text.push_str(&format!(

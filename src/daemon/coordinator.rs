@@ -4,7 +4,7 @@
 //! keeps the autopilot-trigger bookkeeping and the camera's capture activity, and says what
 //! happens by STATUSTEXT. The loop in `run.rs` performs the actions.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, VecDeque};
 
 use super::camera::{
     camera_q_ned, CameraInfo, CameraProtocol, CaptureActivity, CaptureCommand, Captured,
@@ -88,6 +88,54 @@ pub enum Action {
     Write(Box<CaptureRecord>),
 }
 
+/// Which report of the autopilot's picture (`PictureReports`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Report {
+    /// The IMAGE_START_CAPTURE ArduPilot's MAVLinkCamV2 backend sends the camera.
+    Command,
+    /// Its CAMERA_FEEDBACK.
+    Feedback,
+}
+
+/// How many of one kind of report are kept to match the other kind against.
+const REPORTS_KEPT: usize = 8;
+
+/// ArduPilot reports a picture of its MAVLinkCamV2 backend twice: the IMAGE_START_CAPTURE it
+/// sends the camera (param4, the image index) and a CAMERA_FEEDBACK (`img_idx`, the same
+/// index), the command first on its own link but in either order here. Its servo and relay
+/// backends send the feedback alone. A picture is logged at its first report; a report whose
+/// index is among the last few of the other kind is its echo. An autopilot that sends
+/// CAMERA_TRIGGER (PX4) is heard by those; its feedbacks, if any, are not counted again.
+#[derive(Debug, Default)]
+struct PictureReports {
+    commands: VecDeque<u16>,
+    feedbacks: VecDeque<u16>,
+    /// A CAMERA_TRIGGER came since the autopilot booted.
+    trigger_seen: bool,
+}
+
+impl PictureReports {
+    /// Whether this report is its picture's first.
+    fn first(&mut self, report: Report, index: u16) -> bool {
+        if report == Report::Feedback && self.trigger_seen {
+            return false;
+        }
+        let (mine, other) = match report {
+            Report::Command => (&mut self.commands, &mut self.feedbacks),
+            Report::Feedback => (&mut self.feedbacks, &mut self.commands),
+        };
+        if let Some(k) = other.iter().position(|&i| i == index) {
+            other.remove(k);
+            return false;
+        }
+        if mine.len() == REPORTS_KEPT {
+            mine.pop_front();
+        }
+        mine.push_back(index);
+        true
+    }
+}
+
 /// Who asked for a capture the coordinator takes itself.
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Asked {
@@ -144,6 +192,11 @@ pub struct CoordinatorReport {
     pub camera_commands: u64,
     pub camera_command_failures: u64,
     pub autopilot_triggers: u64,
+    /// Of those, the pictures known by the autopilot's CAMERA_FEEDBACK alone (ArduPilot's
+    /// servo and relay cameras), and of these the ones placed at the feedback's arrival
+    /// (its GPS time stamp could not be mapped: no SYSTEM_TIME with UTC yet).
+    pub autopilot_feedbacks: u64,
+    pub feedbacks_timed_on_arrival: u64,
     /// Captures written without their image, or not written (with the reason).
     pub captures_failed: u64,
     pub statustexts: Vec<String>,
@@ -156,6 +209,8 @@ pub struct Coordinator {
     setter: DistanceSetter,
     /// The frames since the autopilot's last picture (its distance counts from there).
     since_picture: SinceLastPicture,
+    /// The autopilot's pictures by their two reports (`PictureReports`).
+    picture_reports: PictureReports,
     /// The vehicle's ground speed, as last known (set with each estimate and tick).
     ground_speed_mps: Option<f64>,
     trigger: Trigger,
@@ -201,6 +256,7 @@ impl Coordinator {
             )),
             setter: DistanceSetter::new(DistanceSetterParams::default()),
             since_picture: SinceLastPicture::default(),
+            picture_reports: PictureReports::default(),
             ground_speed_mps: None,
             trigger: Trigger::new(config.trigger),
             saves_frames: config.capture.mode == CaptureMode::Frame && intrinsics.is_some(),
@@ -506,16 +562,36 @@ impl Coordinator {
             LinkEvent::CameraTrigger {
                 mono_ns: Some(t), ..
             } if self.config.capture.mode == CaptureMode::AutopilotDistance => {
+                self.picture_reports.trigger_seen = true;
                 self.autopilot_picture(&mut out, None, t);
             }
             LinkEvent::CameraTrigger { mono_ns: None, .. }
                 if self.config.capture.mode == CaptureMode::AutopilotDistance =>
             {
+                self.picture_reports.trigger_seen = true;
                 self.status(
                     &mut out,
                     MavSeverity::MAV_SEVERITY_WARNING,
                     "alfd: autopilot trigger before time sync: not logged",
                 );
+            }
+            LinkEvent::CameraFeedback {
+                img_idx,
+                mono_ns,
+                received_mono_ns,
+                ..
+            } if self.config.capture.mode == CaptureMode::AutopilotDistance
+                && self.picture_reports.first(Report::Feedback, img_idx) =>
+            {
+                // ArduPilot's servo or relay camera: the feedback is all that says a
+                // picture was taken. Its GPS time stamp places it; without one that maps,
+                // its arrival does (a link latency late, as MAVLinkCamV2's command is).
+                self.report.autopilot_feedbacks += 1;
+                if mono_ns.is_none() {
+                    self.report.feedbacks_timed_on_arrival += 1;
+                }
+                let from = self.autopilot_id();
+                self.autopilot_picture(&mut out, from, mono_ns.unwrap_or(received_mono_ns));
             }
             LinkEvent::AutopilotFound { firmware } => {
                 // Only ArduPilot is known to count from its last picture; PX4
@@ -533,8 +609,10 @@ impl Coordinator {
                 self.setter.set_check_period_s(check_period_s);
             }
             LinkEvent::AutopilotRebooted => {
-                // Its trigger distance was set, not saved: send it again.
+                // Its trigger distance was set, not saved: send it again. Its image
+                // index starts again too.
                 self.setter.forget();
+                self.picture_reports = PictureReports::default();
                 self.status(
                     &mut out,
                     MavSeverity::MAV_SEVERITY_WARNING,
@@ -559,14 +637,18 @@ impl Coordinator {
                 interval_s,
                 count,
                 command,
-                ..
+                sequence,
             } => {
                 let autopilot = self.config.capture.mode == CaptureMode::AutopilotDistance
                     && command == MavCmd::MAV_CMD_IMAGE_START_CAPTURE
                     && self.is_autopilot(from);
                 if autopilot {
-                    // ArduPilot's MAVLinkCamV2: its distance trigger's picture.
-                    self.autopilot_picture(out, Some(from), now.mono_ns);
+                    // ArduPilot's MAVLinkCamV2: its distance trigger's picture, unless its
+                    // CAMERA_FEEDBACK came first.
+                    let index = sequence.map(|s| s as u16);
+                    if index.is_none_or(|i| self.picture_reports.first(Report::Command, i)) {
+                        self.autopilot_picture(out, Some(from), now.mono_ns);
+                    }
                     return;
                 }
                 self.report.command_captures += 1;
@@ -581,6 +663,12 @@ impl Coordinator {
             CaptureCommand::Stop { .. } => self.interval = None,
         }
         self.sync_activity();
+    }
+
+    /// The autopilot's (system, component), as configured.
+    fn autopilot_id(&self) -> Option<(u8, u8)> {
+        let l = self.config.link.as_ref()?;
+        Some((*l.accept_system_ids.first()?, l.autopilot_component_id))
     }
 
     fn is_autopilot(&self, from: (u8, u8)) -> bool {
@@ -1245,6 +1333,78 @@ mod tests {
         let l = locates(&co.on_link_event(cmd, now(9 * S)));
         let r = writes(&co.on_located(l[0].0, located(9.0)));
         assert_eq!(r[0].capture_mode, CaptureMode::Command);
+    }
+
+    fn feedback(img_idx: u16, mono_ns: Option<u64>, received_mono_ns: u64) -> LinkEvent {
+        LinkEvent::CameraFeedback {
+            img_idx,
+            gps_time_usec: 1_780_000_000_000_000,
+            mono_ns,
+            received_mono_ns,
+            lat_deg: 47.0,
+            lon_deg: 8.0,
+            alt_msl_m: 500.0,
+            alt_rel_m: 40.0,
+        }
+    }
+
+    /// ArduPilot's servo or relay camera says each picture by CAMERA_FEEDBACK alone: each is
+    /// an autopilot capture at the feedback's mapped instant, or at its arrival when that
+    /// cannot be had. Its MAVLinkCamV2 backend says each twice (IMAGE_START_CAPTURE and
+    /// CAMERA_FEEDBACK, same index, either order): logged once. After CAMERA_TRIGGER, an
+    /// autopilot's feedbacks are not pictures of their own.
+    #[test]
+    fn the_autopilots_camera_feedback_is_a_picture_once() {
+        let mut co = coordinator("autopilot_distance", 0);
+        // Servo: feedbacks alone.
+        let a = co.on_link_event(feedback(1, Some(S - 5_000_000), S), now(S));
+        assert_eq!(locates(&a), [(1, S - 5_000_000)]);
+        let a = co.on_link_event(feedback(2, None, 2 * S), now(2 * S));
+        assert_eq!(locates(&a), [(2, 2 * S)], "at its arrival");
+        assert_eq!(co.report.autopilot_feedbacks, 2);
+        assert_eq!(co.report.feedbacks_timed_on_arrival, 1);
+        // MAVLinkCamV2: the command, then its feedback (an echo).
+        let cmd = |index: f32| {
+            command(
+                MavCmd::MAV_CMD_IMAGE_START_CAPTURE,
+                [0.0, 0.0, 1.0, index, 0.0, 0.0, 0.0],
+                (1, 1),
+                Trust::Accepted,
+            )
+        };
+        assert_eq!(locates(&co.on_link_event(cmd(3.0), now(3 * S))).len(), 1);
+        let echo = co.on_link_event(feedback(3, Some(3 * S), 3 * S + 1), now(3 * S + 1));
+        assert!(locates(&echo).is_empty());
+        // The feedback first, then its command: the command is acknowledged, not logged.
+        let f = co.on_link_event(feedback(4, Some(4 * S), 4 * S), now(4 * S));
+        assert_eq!(locates(&f).len(), 1);
+        let c = co.on_link_event(cmd(4.0), now(4 * S + 1));
+        assert_eq!(acks(&c), [MavResult::MAV_RESULT_ACCEPTED]);
+        assert!(locates(&c).is_empty());
+        // An index seen once is not an echo for ever: the next feedback 3 is a picture.
+        assert_eq!(
+            locates(&co.on_link_event(feedback(3, None, 5 * S), now(5 * S))).len(),
+            1
+        );
+        assert_eq!(co.report.autopilot_feedbacks, 4);
+        // Not in the other modes.
+        let mut frame = coordinator("frame", 0);
+        assert!(locates(&frame.on_link_event(feedback(9, None, S), now(S))).is_empty());
+        // An autopilot that sends CAMERA_TRIGGER is heard by those.
+        let trigger = LinkEvent::CameraTrigger {
+            seq: 1,
+            time_boot_us: 6_000_000,
+            mono_ns: Some(6 * S),
+        };
+        assert_eq!(locates(&co.on_link_event(trigger, now(6 * S))).len(), 1);
+        let f = co.on_link_event(feedback(10, Some(6 * S), 6 * S + 1), now(6 * S + 1));
+        assert!(locates(&f).is_empty());
+        // After a reboot, the feedbacks are its pictures again.
+        co.on_link_event(LinkEvent::AutopilotRebooted, now(7 * S));
+        assert_eq!(
+            locates(&co.on_link_event(feedback(1, None, 8 * S), now(8 * S))).len(),
+            1
+        );
     }
 
     #[test]

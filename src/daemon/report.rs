@@ -57,6 +57,9 @@ pub struct RunReport {
     pub trigger_distances_with_picture: u64,
     pub trigger_distances_acked: u64,
     pub autopilot_triggers: u64,
+    /// Of those, known by CAMERA_FEEDBACK alone, and of these placed at its arrival.
+    pub autopilot_feedbacks: u64,
+    pub feedbacks_timed_on_arrival: u64,
     pub tlog_frames: u64,
     pub exports: Option<ExportSummary>,
     pub link: LinkHealth,
@@ -125,6 +128,8 @@ pub(crate) fn report(
         trigger_distances_with_picture: co.setter().sent_with_picture,
         trigger_distances_acked: co.setter().acked,
         autopilot_triggers: c.autopilot_triggers,
+        autopilot_feedbacks: c.autopilot_feedbacks,
+        feedbacks_timed_on_arrival: c.feedbacks_timed_on_arrival,
         link: link.health().borrow().clone(),
         statustexts: c.statustexts,
         statustexts_dropped: c.statustexts_dropped,

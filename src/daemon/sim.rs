@@ -73,7 +73,8 @@ pub struct SimArgs {
     pub lanes: u32,
     pub lane_spacing_m: f64,
     /// Whose HEARTBEAT and distance-trigger counting firmware-sim copies (only
-    /// those: the vehicle flies the same, with the generic camera backend).
+    /// those, and for ArduPilot its servo camera's CAMERA_FEEDBACK instead of
+    /// CAMERA_TRIGGER: the vehicle flies the same).
     pub autopilot: firmware_sim::Autopilot,
     pub seed: u64,
     /// firmware-sim's faults (corruption, drops, scheduled link loss, reboot,
@@ -579,6 +580,12 @@ pub async fn run_sim_with(
         },
         gcs: args.gcs.clone(),
         autopilot: args.autopilot,
+        // ArduPilot never sends CAMERA_TRIGGER: with a servo- or relay-triggered camera,
+        // the commonest survey set-up, each picture is a CAMERA_FEEDBACK alone.
+        camera: match args.autopilot {
+            firmware_sim::Autopilot::ArduPilot => firmware_sim::CameraBackend::Servo,
+            _ => firmware_sim::CameraBackend::Trigger,
+        },
         ..SimConfig::default()
     };
     sc.survey.pattern = firmware_sim::Pattern::Line;

@@ -138,6 +138,11 @@ pub enum LinkEvent {
     CameraFeedback {
         img_idx: u16,
         gps_time_usec: u64,
+        /// The picture's instant on this machine's monotonic clock, from its GPS time stamp
+        /// through the autopilot's SYSTEM_TIME and TIMESYNC; `None` when they cannot say.
+        mono_ns: Option<u64>,
+        /// When the feedback was received (monotonic): a link latency after the picture.
+        received_mono_ns: u64,
         lat_deg: f64,
         lon_deg: f64,
         alt_msl_m: f32,

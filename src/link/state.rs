@@ -156,6 +156,9 @@ pub struct Tracker {
     seqs: HashMap<(u32, u8), u8>,
     /// TIMESYNC requests in flight (their ts1 = our send instant).
     outstanding: VecDeque<u64>,
+    /// The autopilot's UNIX time less its boot time (µs), from its latest SYSTEM_TIME that
+    /// knew UTC: maps a CAMERA_FEEDBACK's GPS time stamp onto the boot clock.
+    unix_minus_boot_us: Option<i64>,
     /// SET_MESSAGE_INTERVAL requests not yet acknowledged, oldest first.
     pub pending_rates: VecDeque<u32>,
 }
@@ -193,6 +196,7 @@ impl Tracker {
             autopilot: None,
             seqs: HashMap::new(),
             outstanding: VecDeque::new(),
+            unix_minus_boot_us: None,
             pending_rates: VecDeque::new(),
             cfg,
         }
@@ -344,11 +348,31 @@ impl Tracker {
         }
     }
 
+    /// The local instant of a picture CAMERA_FEEDBACK stamps `gps_time_us` (UNIX µs), through
+    /// the autopilot's latest SYSTEM_TIME and TIMESYNC; `None` when either is unknown, the stamp
+    /// is 0 (no GPS time), or the instant is not in the two seconds before it was heard of
+    /// (a stamp that disagrees with its own arrival is not believed). Up to 5 ms after its
+    /// arrival is the mapping's own error (SYSTEM_TIME's millisecond, the clock fit): the
+    /// arrival is taken then.
+    fn feedback_instant(&self, gps_time_us: u64, rx_ns: u64) -> Option<u64> {
+        let offset_us = self.unix_minus_boot_us?;
+        let boot_us = i64::try_from(gps_time_us).ok()?.checked_sub(offset_us)?;
+        if gps_time_us == 0 || boot_us <= 0 {
+            return None;
+        }
+        let mono = self
+            .sync
+            .remote_to_local((boot_us as u64).checked_mul(1000)?)?;
+        let mono = (mono <= rx_ns + 5_000_000).then_some(mono.min(rx_ns))?;
+        (rx_ns - mono <= 2_000_000_000).then_some(mono)
+    }
+
     fn on_reboot(&mut self, out: &mut Vec<Reaction>) {
         self.poses.clear();
         self.gate.reset();
         self.local.reset();
         self.outstanding.clear();
+        self.unix_minus_boot_us = None;
         self.health.reboots += 1;
         self.health.synced = false;
         out.push(Reaction::Event(LinkEvent::AutopilotRebooted));
@@ -420,6 +444,8 @@ impl Tracker {
                 out.push(Reaction::Event(LinkEvent::CameraFeedback {
                     img_idx: c.img_idx,
                     gps_time_usec: c.time_usec,
+                    mono_ns: self.feedback_instant(c.time_usec, rx_ns),
+                    received_mono_ns: rx_ns,
                     lat_deg: c.lat as f64 * 1e-7,
                     lon_deg: c.lng as f64 * 1e-7,
                     alt_msl_m: c.alt_msl,
@@ -474,7 +500,14 @@ impl Tracker {
                 }
             }
             MavMessage::SYSTEM_TIME(t) if from_autopilot => {
-                self.time_ok(t.time_boot_ms, rx_ns, &mut out);
+                let plausible = self.time_ok(t.time_boot_ms, rx_ns, &mut out);
+                if plausible && t.time_unix_usec > 0 {
+                    // time_boot_ms is truncated to the millisecond: its instant is half a
+                    // millisecond later on average.
+                    let boot_us = i64::from(t.time_boot_ms) * 1000 + 500;
+                    self.unix_minus_boot_us =
+                        i64::try_from(t.time_unix_usec).ok().map(|u| u - boot_us);
+                }
             }
             MavMessage::GLOBAL_POSITION_INT(p) if from_autopilot => {
                 self.on_position(p, rx_ns, &mut out)
@@ -1347,9 +1380,66 @@ mod origin_tests {
             [Reaction::Event(LinkEvent::CameraFeedback {
                 img_idx: 7,
                 gps_time_usec: 1_700_000_000_000_000,
+                mono_ns: None,
                 ..
             })]
         ));
+    }
+
+    /// A feedback's GPS time stamp is mapped through SYSTEM_TIME and TIMESYNC onto this
+    /// machine's clock; a stamp nothing maps, or one that disagrees with its own arrival, is
+    /// not believed (the coordinator then takes the arrival).
+    #[test]
+    fn camera_feedback_is_placed_by_its_gps_time() {
+        const UNIX_AT_BOOT_US: u64 = 1_780_000_000_000_000;
+        let instant = |t: &mut Tracker, stamp_us: u64, heard_ms: u32| {
+            let m = MavMessage::CAMERA_FEEDBACK(CAMERA_FEEDBACK_DATA {
+                time_usec: stamp_us,
+                img_idx: 3,
+                ..Default::default()
+            });
+            match feed(t, &m, heard_ms).as_slice() {
+                [Reaction::Event(LinkEvent::CameraFeedback {
+                    mono_ns,
+                    received_mono_ns,
+                    ..
+                })] => {
+                    assert_eq!(*received_mono_ns, local(heard_ms) + MS);
+                    *mono_ns
+                }
+                other => panic!("{other:?}"),
+            }
+        };
+        let mut t = synced(true);
+        // No SYSTEM_TIME yet: nothing maps GPS time.
+        assert_eq!(instant(&mut t, UNIX_AT_BOOT_US + 1_950_250, 2_000), None);
+        let time = MavMessage::SYSTEM_TIME(SYSTEM_TIME_DATA {
+            time_unix_usec: UNIX_AT_BOOT_US + 1_900_000,
+            time_boot_ms: 1_900,
+        });
+        feed(&mut t, &time, 1_900);
+        // The picture 50 ms before it was heard of, to within the millisecond.
+        let picture_ns = 1_950_250 * 1000 + OFFSET_NS;
+        let got = instant(&mut t, UNIX_AT_BOOT_US + 1_950_250, 2_000).expect("mapped");
+        assert!(got.abs_diff(picture_ns) <= MS, "{got} vs {picture_ns}");
+        // A zero stamp (no GPS time), one 100 ms after its arrival, one 5 s before: not
+        // believed. Within the mapping's error after it: its arrival.
+        assert_eq!(instant(&mut t, 0, 2_000), None);
+        assert_eq!(instant(&mut t, UNIX_AT_BOOT_US + 2_100_000, 2_000), None);
+        assert_eq!(
+            instant(&mut t, UNIX_AT_BOOT_US + 2_002_000, 2_000),
+            Some(local(2_000) + MS)
+        );
+        assert_eq!(instant(&mut t, UNIX_AT_BOOT_US + 1_000, 5_000), None);
+        // A SYSTEM_TIME without UTC (time_unix_usec 0) keeps the last one that had it.
+        let no_utc = MavMessage::SYSTEM_TIME(SYSTEM_TIME_DATA {
+            time_unix_usec: 0,
+            time_boot_ms: 2_100,
+        });
+        feed(&mut t, &no_utc, 2_100);
+        let later_ns = 2_150_000 * 1000 + OFFSET_NS;
+        let got = instant(&mut t, UNIX_AT_BOOT_US + 2_150_000, 2_200).expect("mapped");
+        assert!(got.abs_diff(later_ns) <= MS, "{got} vs {later_ns}");
     }
 
     #[test]

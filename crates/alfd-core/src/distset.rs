@@ -239,10 +239,20 @@ impl DistanceSetter {
 /// Frames kept to split at a picture that is heard of late: a second at 30 fps.
 const RECENT_FRAMES: usize = 32;
 
+/// How far a picture's instant may be off the frames' clock: TIMESYNC's fit, and for a
+/// CAMERA_FEEDBACK its GPS stamp mapped through SYSTEM_TIME's millisecond. A frame this
+/// close before a picture may as well be after it, and is counted in the interval the
+/// picture opens as well as the one it closes: from a millimetre or two away it sees what
+/// the picture's neighbourhood needs (a frame 55 µs before a CAMERA_FEEDBACK's mapped
+/// instant, left out of the new interval, let its distance run 1.09× past that frame's
+/// spacing in `alfd sim --autopilot ardupilot --mode autopilot_distance`).
+pub const PICTURE_SLACK_NS: u64 = 2_000_000;
+
 /// The tightest spacing over the frames since the autopilot's last picture,
 /// by the frames' own times: the picture is heard of after some frames taken
 /// after it were estimated (the link's latency), and those belong to the new
-/// interval. Pure: times are arguments.
+/// interval; so do the frames within [`PICTURE_SLACK_NS`] before it. Pure: times
+/// are arguments.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct SinceLastPicture {
     /// The newest frames' (time, spacing, the tightest since the last picture
@@ -262,8 +272,11 @@ impl SinceLastPicture {
             self.recent.pop_front();
         }
         // A frame from before the last picture, estimated after it was heard
-        // of, belongs to the interval already closed: not counted.
-        let counts = self.picture_ns.is_none_or(|p| mono_ns >= p);
+        // of, belongs to the interval already closed: not counted (unless it
+        // is within the slack of it).
+        let counts = self
+            .picture_ns
+            .is_none_or(|p| mono_ns.saturating_add(PICTURE_SLACK_NS) >= p);
         if counts {
             self.tightest_m = Some(self.tightest_m.map_or(spacing_m, |t| t.min(spacing_m)));
         }
@@ -289,7 +302,8 @@ impl SinceLastPicture {
         };
         self.picture_ns = Some(mono_ns);
         let mut run: Option<f64> = None;
-        for e in self.recent.iter_mut().filter(|e| e.0 >= mono_ns) {
+        let opens_from = mono_ns.saturating_sub(PICTURE_SLACK_NS);
+        for e in self.recent.iter_mut().filter(|e| e.0 >= opens_from) {
             run = Some(run.map_or(e.1, |r: f64| r.min(e.1)));
             e.2 = run;
         }
@@ -442,36 +456,62 @@ mod tests {
 
     #[test]
     fn the_tightest_since_a_picture_counts_the_frames_after_it_heard_of_late() {
+        const MS: u64 = 1_000_000;
         let mut w = SinceLastPicture::default();
         for (t, sp) in [(100, 2.0), (133, 0.7), (166, 3.0), (200, 5.0)] {
-            w.on_spacing(t, sp);
+            w.on_spacing(t * MS, sp);
         }
         assert_eq!(w.tightest_m(), Some(0.7));
         // A picture at 150 heard of after the frames at 166 and 200: they are its interval's.
         // The interval it closes: the frames before it (0.7 m the tightest).
-        assert_eq!(w.on_picture(150), Some(0.7));
+        assert_eq!(w.on_picture(150 * MS), Some(0.7));
         assert_eq!(w.tightest_m(), Some(3.0));
         // A late frame from before the picture does not count.
-        w.on_spacing(140, 0.1);
+        w.on_spacing(140 * MS, 0.1);
         assert_eq!(w.tightest_m(), Some(3.0));
-        w.on_spacing(233, 2.5);
+        w.on_spacing(233 * MS, 2.5);
         assert_eq!(w.tightest_m(), Some(2.5));
         // An older picture heard of later changes nothing.
-        assert_eq!(w.on_picture(120), None);
+        assert_eq!(w.on_picture(120 * MS), None);
         assert_eq!(w.tightest_m(), Some(2.5));
         // A picture after every frame: nothing since it yet; bad spacings are ignored.
         // It closes 166 … 233 (not the late 140).
-        assert_eq!(w.on_picture(300), Some(2.5));
+        assert_eq!(w.on_picture(300 * MS), Some(2.5));
         assert_eq!(w.tightest_m(), None);
-        w.on_spacing(310, f64::NAN);
+        w.on_spacing(310 * MS, f64::NAN);
         assert_eq!(w.tightest_m(), None);
         // Only the newest frames are kept.
         for k in 0..100u64 {
-            w.on_spacing(400 + k, 1.0 + k as f64);
+            w.on_spacing((400 + k) * MS, 1.0 + k as f64);
         }
         // No valid frame between 300 and 400 (310 was NaN).
-        assert_eq!(w.on_picture(400), None);
+        assert_eq!(w.on_picture(400 * MS), None);
         assert_eq!(w.tightest_m(), Some(1.0 + (100 - RECENT_FRAMES) as f64));
+    }
+
+    /// A frame within the slack before a picture counts in both intervals: the closing
+    /// one (by its time) and the one the picture opens (its instant may be off by that
+    /// much); one further before counts in the closing one only.
+    #[test]
+    fn a_frame_within_the_slack_of_a_picture_counts_on_both_sides() {
+        const MS: u64 = 1_000_000;
+        let mut w = SinceLastPicture::default();
+        w.on_spacing(1000 * MS, 4.0);
+        w.on_spacing(1033 * MS, 0.5);
+        w.on_spacing(1066 * MS, 3.0);
+        // The picture 1 ms after the 0.5 m frame: it closes 4.0 and 0.5, and opens with
+        // 0.5 and 3.0.
+        assert_eq!(w.on_picture(1034 * MS), Some(0.5));
+        assert_eq!(w.tightest_m(), Some(0.5));
+        // The picture 3 ms after a 0.2 m frame: closed, not carried over.
+        w.on_spacing(1100 * MS, 0.2);
+        assert_eq!(w.on_picture(1103 * MS), Some(0.2));
+        assert_eq!(w.tightest_m(), None);
+        // A frame heard of late, 1 ms before the last picture, counts in its interval.
+        w.on_spacing(1102 * MS, 0.9);
+        assert_eq!(w.tightest_m(), Some(0.9));
+        w.on_spacing(1090 * MS, 0.1);
+        assert_eq!(w.tightest_m(), Some(0.9));
     }
 
     #[test]
