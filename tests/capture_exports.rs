@@ -588,16 +588,128 @@ fn an_external_cameras_pictures_are_paired_with_their_captures() {
         "{stderr}"
     );
     assert_eq!(fs::read_to_string(flight_dir.join(GEO_TXT)).unwrap(), geo);
-    // A card's root, whose pictures are in a folder of it: the folder is named.
-    let (status, _, stderr) = alfd_export_images(&flight_dir, tmp.path());
-    assert_eq!(status.code(), Some(2), "{stderr}");
+    // A card's root, whose pictures are in folders of it: every folder is read (the
+    // other flight's pictures are left out by time), and the pairing is the same.
+    let (status, stdout, stderr) = alfd_export_images(&flight_dir, tmp.path());
+    assert!(status.success(), "{stderr}");
     assert!(
-        stderr.contains("no JPEG picture there; its folders") && stderr.contains("DCIM"),
-        "{stderr}"
+        stdout.contains("camera           14 JPEG pictures in 2 folders (")
+            && stdout.contains("not paired       5 pictures no capture triggered (left out): DSC00001.JPG, IMG_0.JPG"),
+        "{stdout}"
     );
+    assert_eq!(fs::read_to_string(flight_dir.join(GEO_TXT)).unwrap(), geo);
     let (status, _, stderr) = alfd_export_images(&flight_dir, &tmp.path().join("nowhere"));
     assert_eq!(status.code(), Some(2), "{stderr}");
     assert!(stderr.contains("not a directory"), "{stderr}");
+}
+
+/// A flight the camera spread over two folders of its card (it starts a new one every
+/// 999 or 9999 pictures): named both with `--images` twice, or the card's DCIM, the
+/// pictures are one camera's. Names shared by the two folders carry their folder.
+#[test]
+fn a_flight_over_two_folders_of_the_card_is_paired_as_one() {
+    let tmp = tempfile::tempdir().unwrap();
+    let flight_dir = tmp.path().join("flight-001");
+    let dcim = tmp.path().join("DCIM");
+    let (a, b) = (dcim.join("100MEDIA"), dcim.join("101MEDIA"));
+    fs::create_dir_all(&a).unwrap();
+    fs::create_dir_all(&b).unwrap();
+    let gaps_s = [0.0, 2.1, 1.5, 3.3, 2.7, 1.9, 2.4, 3.0];
+    let mut t_us = 1_780_123_456_000_000u64;
+    let mut records = Vec::new();
+    {
+        let mut store = DirStore::open(&flight_dir).unwrap();
+        for (k, gap) in gaps_s.iter().enumerate() {
+            t_us += (gap * 1e6) as u64;
+            let seq = k as u64 + 1;
+            let mut r = record(seq, 47.0 + seq as f64 * 1e-5, 8.5, 500.0, 0.0, 0.0);
+            r.image = None;
+            r.intrinsics = None;
+            r.capture_mode = CaptureMode::AutopilotDistance;
+            r.time_unix_us = Some(t_us);
+            r.time_boot_us = t_us - 1_780_000_000_000_000;
+            log_capture(&mut store, &r, None).unwrap();
+            records.push(r);
+        }
+    }
+    // The first five in 100MEDIA (DJI_0995 … DJI_0999), the rest in 101MEDIA.
+    let mut want = Vec::new();
+    for (k, r) in records.iter().enumerate() {
+        let (dir, name) = if k < 5 {
+            (&a, format!("DJI_{:04}.JPG", 995 + k))
+        } else {
+            (&b, format!("DJI_{:04}.JPG", 1000 + k - 5))
+        };
+        fs::write(
+            dir.join(&name),
+            camera_picture(r.time_unix_us.unwrap() + 50_000),
+        )
+        .unwrap();
+        want.push(format!(
+            "{name} {:.9} {:.9} {:.3}",
+            r.position.lon_deg, r.position.lat_deg, r.position.alt_m
+        ));
+    }
+    let geo_lines = |stdout: &str| {
+        let geo = fs::read_to_string(flight_dir.join(GEO_TXT)).unwrap();
+        assert!(
+            stdout.contains("paired           8 of 8 captures in order, and their times agree"),
+            "{stdout}"
+        );
+        geo.lines().skip(1).map(str::to_owned).collect::<Vec<_>>()
+    };
+    // Both folders named.
+    let (status, stdout, stderr) = alfd_export_with(
+        &flight_dir,
+        &[
+            "--images".as_ref(),
+            a.as_os_str(),
+            "--images".as_ref(),
+            b.as_os_str(),
+        ],
+    );
+    assert!(status.success(), "{stderr}");
+    assert!(
+        stdout.contains("8 JPEG pictures in 2 folders ("),
+        "{stdout}"
+    );
+    assert!(!stdout.contains("names            "), "{stdout}");
+    assert_eq!(geo_lines(&stdout), want);
+    // The card's DCIM: its folders in the order of their names.
+    fs::remove_file(flight_dir.join(GEO_TXT)).unwrap();
+    let (status, stdout, stderr) = alfd_export_images(&flight_dir, &dcim);
+    assert!(status.success(), "{stderr}");
+    assert_eq!(geo_lines(&stdout), want);
+    // A camera that numbered the new folder from 1 again: DJI_0001.JPG in both would
+    // be two pictures by one name, so every name carries its folder.
+    fs::rename(b.join("DJI_1000.JPG"), b.join("DJI_0995.JPG")).unwrap();
+    let (status, stdout, stderr) = alfd_export_images(&flight_dir, &dcim);
+    assert!(status.success(), "{stderr}");
+    assert!(
+        stdout.contains("names            with their folder (DJI_0995.JPG is in two of them)"),
+        "{stdout}"
+    );
+    let qualified: Vec<String> = want
+        .iter()
+        .enumerate()
+        .map(|(k, l)| {
+            let l = l.replace("DJI_1000.JPG", "DJI_0995.JPG");
+            format!("{}/{l}", if k < 5 { "100MEDIA" } else { "101MEDIA" })
+        })
+        .collect();
+    assert_eq!(geo_lines(&stdout), qualified);
+    // The same folder twice is one folder.
+    let (status, _, stderr) = alfd_export_with(
+        &flight_dir,
+        &[
+            "--images".as_ref(),
+            a.as_os_str(),
+            "--images".as_ref(),
+            a.as_os_str(),
+        ],
+    );
+    assert_eq!(status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("given twice"), "{stderr}");
 }
 
 /// A directory a daemon still writes is refused (its temporaries are images in

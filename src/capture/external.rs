@@ -34,10 +34,18 @@ pub struct CameraImage {
     pub taken: Option<TakenAt>,
 }
 
-/// A camera directory's JPEG pictures, in the order the camera took them.
+/// A camera's JPEG pictures, from one folder or several, in the order the camera took
+/// them.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CameraDir {
+    /// The folder named (with several, the first).
     pub dir: PathBuf,
+    /// Every folder read, in order (one, or a card's several: a camera starts a new
+    /// folder every 999 or 9999 pictures).
+    pub folders: Vec<PathBuf>,
+    /// Names carry their folder (`101MSDCF/DSC00001.JPG`): two folders hold a picture of
+    /// the same name. Else each name is the file's own.
+    pub qualified: Option<String>,
     pub images: Vec<CameraImage>,
     /// Files that are not JPEG pictures (raw files, videos, sidecars), left alone.
     pub other_files: usize,
@@ -62,9 +70,88 @@ fn geo_name_ok(name: &str) -> bool {
 /// The JPEG files of `dir` (not its subdirectories), each with the capture time its
 /// EXIF holds. Reads the first 256 KiB of each; writes nothing.
 pub fn read_camera_dir(dir: &Path) -> Result<CameraDir, StoreError> {
+    read_camera_dirs(&[dir.to_owned()])
+}
+
+/// The JPEG files of each of `dirs` (not their subdirectories), as one camera's
+/// pictures. Each is named by its file name, unless two folders hold the same name:
+/// then every name carries its folder's (`101MSDCF/DSC00001.JPG`), and
+/// [`CameraDir::qualified`] says which name was shared. Ordered by capture time when
+/// every picture has one, else by folder (in the order given), then name.
+pub fn read_camera_dirs(dirs: &[PathBuf]) -> Result<CameraDir, StoreError> {
     let mut images = Vec::new();
     let mut other_files = 0;
     let mut bad_names = Vec::new();
+    // (folder, file name) of each picture, for the names below.
+    let mut whose = Vec::new();
+    for (k, dir) in dirs.iter().enumerate() {
+        let before = images.len();
+        read_one_dir(dir, &mut images, &mut other_files, &mut bad_names)?;
+        whose.extend(std::iter::repeat_n(k, images.len() - before));
+    }
+    let qualified = if dirs.len() > 1 {
+        let mut names: Vec<(&str, usize)> = images
+            .iter()
+            .zip(&whose)
+            .map(|(i, &k)| (i.name.as_str(), k))
+            .collect();
+        names.sort();
+        names
+            .windows(2)
+            .find(|w| w[0].0 == w[1].0)
+            .map(|w| w[0].0.to_owned())
+    } else {
+        None
+    };
+    let mut keyed: Vec<(usize, CameraImage)> = whose.into_iter().zip(images).collect();
+    if qualified.is_some() {
+        for (k, i) in &mut keyed {
+            let folder = dirs[*k]
+                .file_name()
+                .map(|f| f.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            i.name = format!("{folder}/{}", i.name);
+        }
+        // A folder's name geo.txt cannot carry (a space) leaves its pictures out.
+        keyed.retain(|(_, i)| {
+            let ok = geo_name_ok(&i.name);
+            if !ok {
+                bad_names.push(i.name.clone());
+            }
+            ok
+        });
+    }
+    // Folder by folder, as given, when names decide the order.
+    let by_time = !keyed.is_empty() && keyed.iter().all(|(_, i)| i.taken.is_some());
+    if by_time {
+        keyed.sort_by(|(ka, a), (kb, b)| {
+            let t = |i: &CameraImage| i.taken.map_or(0.0, |t| t.clock_s);
+            t(a).total_cmp(&t(b))
+                .then_with(|| ka.cmp(kb))
+                .then_with(|| a.name.cmp(&b.name))
+        });
+    } else {
+        keyed.sort_by(|(ka, a), (kb, b)| ka.cmp(kb).then_with(|| a.name.cmp(&b.name)));
+    }
+    let images = keyed.into_iter().map(|(_, i)| i).collect();
+    bad_names.sort();
+    Ok(CameraDir {
+        dir: dirs.first().cloned().unwrap_or_default(),
+        folders: dirs.to_vec(),
+        qualified,
+        images,
+        other_files,
+        bad_names,
+        by_time,
+    })
+}
+
+fn read_one_dir(
+    dir: &Path,
+    images: &mut Vec<CameraImage>,
+    other_files: &mut usize,
+    bad_names: &mut Vec<String>,
+) -> Result<(), StoreError> {
     for entry in std::fs::read_dir(dir).map_err(|e| io_error(dir, e))? {
         let entry = entry.map_err(|e| io_error(dir, e))?;
         let path = entry.path();
@@ -77,7 +164,7 @@ pub fn read_camera_dir(dir: &Path) -> Result<CameraDir, StoreError> {
             .extension()
             .map(|e| e.to_string_lossy().to_ascii_lowercase());
         if name.starts_with('.') || !matches!(ext.as_deref(), Some("jpg" | "jpeg")) {
-            other_files += 1;
+            *other_files += 1;
             continue;
         }
         if entry.file_name().to_str().is_none() || !geo_name_ok(&name) {
@@ -91,23 +178,7 @@ pub fn read_camera_dir(dir: &Path) -> Result<CameraDir, StoreError> {
         let taken = find_exif_app1(&head).and_then(parse_exif_taken);
         images.push(CameraImage { name, taken });
     }
-    let by_time = !images.is_empty() && images.iter().all(|i| i.taken.is_some());
-    if by_time {
-        images.sort_by(|a, b| {
-            let t = |i: &CameraImage| i.taken.map_or(0.0, |t| t.clock_s);
-            t(a).total_cmp(&t(b)).then_with(|| a.name.cmp(&b.name))
-        });
-    } else {
-        images.sort_by(|a, b| a.name.cmp(&b.name));
-    }
-    bad_names.sort();
-    Ok(CameraDir {
-        dir: dir.to_owned(),
-        images,
-        other_files,
-        bad_names,
-        by_time,
-    })
+    Ok(())
 }
 
 /// A capture the camera was to take a picture for, as [`pair`] needs it.
@@ -476,6 +547,50 @@ mod tests {
                 resolution_s,
             }),
         }
+    }
+
+    /// Several folders are one camera's: without times, folder by folder as given,
+    /// then by name; a name two folders share makes every name carry its folder, and
+    /// a folder's name geo.txt cannot carry then leaves its pictures out.
+    #[test]
+    fn folders_read_as_one_camera() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = |name: &str, files: &[&str]| {
+            let d = tmp.path().join(name);
+            std::fs::create_dir(&d).unwrap();
+            for f in files {
+                std::fs::write(d.join(f), b"not a real JPEG: no EXIF time").unwrap();
+            }
+            d
+        };
+        let names = |c: &CameraDir| c.images.iter().map(|i| i.name.clone()).collect::<Vec<_>>();
+        let a = dir("100CANON", &["IMG_9998.JPG", "IMG_9999.JPG", "notes.txt"]);
+        let b = dir("101CANON", &["IMG_0001.JPG", "IMG_0002.JPG"]);
+        let c = read_camera_dirs(&[a.clone(), b.clone()]).unwrap();
+        assert!(!c.by_time && c.qualified.is_none());
+        assert_eq!(
+            names(&c),
+            [
+                "IMG_9998.JPG",
+                "IMG_9999.JPG",
+                "IMG_0001.JPG",
+                "IMG_0002.JPG"
+            ]
+        );
+        assert_eq!((c.other_files, c.folders.len()), (1, 2));
+        let d = dir("102 CANON", &["IMG_0001.JPG"]);
+        let c = read_camera_dirs(&[a, b, d]).unwrap();
+        assert_eq!(c.qualified.as_deref(), Some("IMG_0001.JPG"));
+        assert_eq!(
+            names(&c),
+            [
+                "100CANON/IMG_9998.JPG",
+                "100CANON/IMG_9999.JPG",
+                "101CANON/IMG_0001.JPG",
+                "101CANON/IMG_0002.JPG"
+            ]
+        );
+        assert_eq!(c.bad_names, ["102 CANON/IMG_0001.JPG"]);
     }
 
     /// Triggers at the given boot times, seq from 1, UTC 1.78e9 s ahead of boot.

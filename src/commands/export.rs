@@ -6,7 +6,7 @@
 
 use super::{bad, emit};
 use alfd::capture::export::{Skip, GEO_TXT, TRANSFORMS_JSON};
-use alfd::capture::external::{read_camera_dir, CameraDir, PairedBy, Pairing};
+use alfd::capture::external::{read_camera_dirs, CameraDir, PairedBy, Pairing};
 use alfd::capture::store::MANIFEST;
 use alfd::capture::{
     export_flight, export_flight_with_camera, ExportError, FlightExport, StoreError,
@@ -23,9 +23,11 @@ pub struct Args {
     flight_dir: PathBuf,
     /// An external camera's pictures (its card's folder of JPEGs): each is paired
     /// with the capture that triggered it (`camera_command`, `autopilot_distance`)
-    /// and named on that capture's `geo.txt` line. The folder is only read.
+    /// and named on that capture's `geo.txt` line. Given again for a flight the
+    /// camera spread over several folders; a card's DCIM reads every folder in it
+    /// that holds pictures. The folders are only read.
     #[arg(long, value_name = "DIR")]
-    images: Option<PathBuf>,
+    images: Vec<PathBuf>,
 }
 
 pub fn run(a: Args) -> Result<ExitCode> {
@@ -40,42 +42,64 @@ pub fn run(a: Args) -> Result<ExitCode> {
         StoreError::InUse { .. } => bad(e.to_string()),
         e => anyhow::Error::new(e),
     };
-    let Some(images) = a.images else {
+    if a.images.is_empty() {
         let done = export_flight(&dir).map_err(in_use)?;
         emit(&report(&dir, &done, true))?;
         return Ok(ExitCode::SUCCESS);
-    };
-    if !images.is_dir() {
-        return Err(bad(format!(
-            "--images {}: not a directory: name the folder of the camera's pictures",
-            images.display()
-        )));
     }
-    let camera = read_camera_dir(&images)?;
+    for images in &a.images {
+        if !images.is_dir() {
+            return Err(bad(format!(
+                "--images {}: not a directory: name the folder of the camera's pictures",
+                images.display()
+            )));
+        }
+    }
+    let mut seen = std::collections::HashSet::new();
+    for images in &a.images {
+        let real = images
+            .canonicalize()
+            .map_err(|e| bad(format!("--images {}: {e}", images.display())))?;
+        if !seen.insert(real) {
+            return Err(bad(format!(
+                "--images {}: given twice (each folder of the camera's pictures once)",
+                images.display()
+            )));
+        }
+    }
+    let mut folders = a.images.clone();
+    let mut root = None;
+    if let [one] = folders.as_slice() {
+        // A card's root (DCIM) holds folders of pictures, not pictures: all of them,
+        // in the order of their names (100MSDCF, 101MSDCF: the camera's own order).
+        if !has_jpeg(one) {
+            let mut inside: Vec<PathBuf> = std::fs::read_dir(one)
+                .into_iter()
+                .flatten()
+                .flatten()
+                .map(|e| e.path())
+                .filter(|p| p.is_dir() && has_jpeg(p))
+                .collect();
+            inside.sort();
+            if !inside.is_empty() {
+                root = Some(one.clone());
+                folders = inside;
+            }
+        }
+    }
+    let mut camera = read_camera_dirs(&folders)?;
+    // A refusal names the folder the operator named.
+    if let Some(root) = root {
+        camera.dir = root;
+    }
     if camera.images.is_empty() {
-        // A card's root (DCIM) holds folders of pictures, not pictures.
-        let folders: Vec<String> = std::fs::read_dir(&images)
-            .into_iter()
-            .flatten()
-            .flatten()
-            .map(|e| e.path())
-            .filter(|p| p.is_dir() && has_jpeg(p))
-            .map(|p| p.display().to_string())
-            .collect();
-        let mut msg = format!("--images {}: no JPEG picture there", images.display());
+        let named: Vec<String> = a.images.iter().map(|p| p.display().to_string()).collect();
+        let mut msg = format!("--images {}: no JPEG picture there", named.join(", "));
         if !camera.bad_names.is_empty() {
             let _ = write!(
                 msg,
                 " whose name geo.txt can carry: rename the {} with a space or a control character",
                 camera.bad_names.len()
-            );
-        } else if !folders.is_empty() {
-            let mut folders = folders;
-            folders.sort();
-            let _ = write!(
-                msg,
-                "; its folders {} have some: name one (a flight's pictures in two folders, copy them into one)",
-                folders.join(", ")
             );
         }
         return Err(bad(msg));
@@ -130,12 +154,29 @@ pub fn camera_report(camera: &CameraDir, p: &Pairing) -> String {
     } else {
         "in the order of their names (not every picture has an EXIF capture time)"
     };
+    let place = match camera.folders.as_slice() {
+        [one] => one.display().to_string(),
+        several => format!(
+            "{} folders ({})",
+            several.len(),
+            several
+                .iter()
+                .map(|f| f.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    };
     let _ = writeln!(
         s,
-        "camera           {} JPEG pictures in {}, {order}",
+        "camera           {} JPEG pictures in {place}, {order}",
         camera.images.len(),
-        camera.dir.display()
     );
+    if let Some(shared) = &camera.qualified {
+        let _ = writeln!(
+            s,
+            "names            with their folder ({shared} is in two of them): give the reconstruction the folders' parent as its image folder"
+        );
+    }
     if camera.other_files > 0 {
         let _ = writeln!(
             s,
