@@ -433,6 +433,27 @@ fn a_flight_cut_short_gets_its_exports_from_alfd_export() {
         "{stdout}"
     );
     assert!(stdout.contains("transforms.json  2 frames"), "{stdout}");
+    assert!(
+        stdout.contains(
+            "COLMAP model     cameras.txt, images.txt, points3D.txt: the same 2 images and poses"
+        ),
+        "{stdout}"
+    );
+    let images_txt = fs::read_to_string(flight_dir.join("images.txt")).unwrap();
+    let named: Vec<&str> = images_txt
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.is_empty())
+        .map(|l| l.rsplit(' ').next().unwrap())
+        .collect();
+    let transforms: serde_json::Value =
+        serde_json::from_slice(&fs::read(flight_dir.join(TRANSFORMS_JSON)).unwrap()).unwrap();
+    let frames: Vec<&str> = transforms["frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f["file_path"].as_str().unwrap())
+        .collect();
+    assert_eq!(named, frames);
 
     // An image lost since (a card copied in part) is named, not passed over.
     fs::remove_file(flight_dir.join("IMG_000002.jpg")).unwrap();

@@ -21,6 +21,10 @@ use std::path::Path;
 
 pub const GEO_TXT: &str = "geo.txt";
 pub const TRANSFORMS_JSON: &str = "transforms.json";
+/// COLMAP's text model of the flight's own images with their poses (`colmap_text`).
+pub const COLMAP_CAMERAS: &str = "cameras.txt";
+pub const COLMAP_IMAGES: &str = "images.txt";
+pub const COLMAP_POINTS: &str = "points3D.txt";
 
 /// NED → ENU: swap the horizontal axes, flip the vertical one.
 pub const NED_TO_ENU: DMat3 = DMat3::from_cols(
@@ -271,6 +275,90 @@ pub fn transforms_with(
     (t, skipped)
 }
 
+/// A COLMAP text model (`cameras.txt`, `images.txt`, `points3D.txt`): the frames of
+/// `transforms.json`, with the same poses and intrinsics, for COLMAP's reconstruction
+/// from known poses (`colmap point_triangulator --input_path FLIGHT_DIR`). One PINHOLE
+/// camera per distinct intrinsics, numbered from 1 in the order they first appear; an
+/// image per frame, numbered from 1 in capture order, its pose world-to-camera (COLMAP
+/// and OpenCV axes: x right, y down, z along the optical axis) in the same local ENU
+/// metres; no 3-D point (the triangulation makes them). Pixel coordinates are COLMAP's
+/// and alfd's alike: the top-left pixel's centre is (0.5, 0.5), so the principal point
+/// goes over as it is. Numbers are written in full (Rust's shortest round trip).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ColmapText {
+    pub cameras: String,
+    pub images: String,
+    pub points: String,
+}
+
+/// The COLMAP text model of `t`'s frames ([`ColmapText`]).
+pub fn colmap_text(t: &NerfTransforms) -> ColmapText {
+    let mut intrinsics: Vec<NerfIntrinsics> = Vec::new();
+    let mut images = String::new();
+    for (k, f) in t.frames.iter().enumerate() {
+        let intr = f.intrinsics.unwrap_or(t.intrinsics);
+        let camera_id = match intrinsics.iter().position(|i| *i == intr) {
+            Some(i) => i + 1,
+            None => {
+                intrinsics.push(intr);
+                intrinsics.len()
+            }
+        };
+        let m = f.transform_matrix;
+        let c2w_gl = DMat3::from_cols(
+            DVec3::new(m[0][0], m[1][0], m[2][0]),
+            DVec3::new(m[0][1], m[1][1], m[2][1]),
+            DVec3::new(m[0][2], m[1][2], m[2][2]),
+        );
+        let centre = DVec3::new(m[0][3], m[1][3], m[2][3]);
+        let world_to_cam = (c2w_gl * GL_TO_CV).transpose();
+        let mut q = glam::DQuat::from_mat3(&world_to_cam).normalize();
+        // q and −q are the same rotation: the one with w ≥ 0, so each pose has one text.
+        if q.w < 0.0 {
+            q = -q;
+        }
+        let t_cw = -(world_to_cam * centre);
+        images.push_str(&format!(
+            "{} {} {} {} {} {} {} {} {camera_id} {}\n\n",
+            k + 1,
+            q.w,
+            q.x,
+            q.y,
+            q.z,
+            t_cw.x,
+            t_cw.y,
+            t_cw.z,
+            f.file_path
+        ));
+    }
+    let mut cameras = format!(
+        "# Camera list with one line of data per camera:\n#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n# Number of cameras: {}\n",
+        intrinsics.len()
+    );
+    for (k, i) in intrinsics.iter().enumerate() {
+        cameras.push_str(&format!(
+            "{} PINHOLE {} {} {} {} {} {}\n",
+            k + 1,
+            i.w,
+            i.h,
+            i.fl_x,
+            i.fl_y,
+            i.cx,
+            i.cy
+        ));
+    }
+    let images = format!(
+        "# Image list with two lines of data per image:\n#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n#   POINTS2D[] as (X, Y, POINT3D_ID)\n# Number of images: {}, mean observations per image: 0\n{images}",
+        t.frames.len()
+    );
+    let points = "# 3D point list with one line of data per point:\n#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)\n# Number of points: 0, mean track length: 0\n".to_owned();
+    ColmapText {
+        cameras,
+        images,
+        points,
+    }
+}
+
 /// What [`write_exports`] wrote.
 #[derive(Debug, Clone, PartialEq, Eq, Default)]
 pub struct ExportSummary {
@@ -281,7 +369,8 @@ pub struct ExportSummary {
     pub transforms_skipped: Vec<(u64, Skip)>,
 }
 
-/// Writes `geo.txt` and (when any frame qualifies) `transforms.json` atomically.
+/// Writes `geo.txt` and (when any frame qualifies) `transforms.json` and the COLMAP
+/// model of the same frames ([`colmap_text`]), each file atomically.
 pub fn write_exports<S: CaptureStore + ?Sized>(
     store: &mut S,
     records: &[CaptureRecord],
@@ -304,6 +393,11 @@ pub fn write_exports_with<S: CaptureStore + ?Sized>(
                 serde_json::to_string_pretty(&t).expect("finite numbers and strings serialise");
             json.push('\n');
             store.write_export(TRANSFORMS_JSON, json.as_bytes())?;
+            let c = colmap_text(&t);
+            store.write_export(COLMAP_CAMERAS, c.cameras.as_bytes())?;
+            store.write_export(COLMAP_POINTS, c.points.as_bytes())?;
+            // The images last: a model is read from its images.
+            store.write_export(COLMAP_IMAGES, c.images.as_bytes())?;
             Some(t.frames.len())
         }
         None => None,
@@ -479,6 +573,104 @@ mod tests {
         assert_eq!(rows(&m)[1][3], 4.0);
         assert_eq!(rows(&m)[2][3], 40.0);
         assert_eq!(rows(&m)[3], [0.0, 0.0, 0.0, 1.0]);
+    }
+
+    /// The COLMAP model projects every world point where `transforms.json` does: a nadir
+    /// frame (by hand: the point below at the principal point, a metre north of it
+    /// f/40 px to the right) and a tilted, rolled one with other intrinsics (its own camera).
+    #[test]
+    fn the_colmap_model_projects_as_transforms_json_does() {
+        let intr = NerfIntrinsics {
+            fl_x: 465.0,
+            fl_y: 465.0,
+            cx: 320.0,
+            cy: 240.0,
+            w: 640,
+            h: 480,
+        };
+        let other = NerfIntrinsics {
+            fl_x: 600.5,
+            cx: 300.25,
+            ..intr
+        };
+        let poses = [
+            (att(0.0, 0.0, 0.0, 0.0), DVec3::new(10.0, -5.0, 40.0), None),
+            (
+                att(7.0, -4.0, 123.0, 30.0),
+                DVec3::new(-3.0, 8.0, 55.0),
+                Some(other),
+            ),
+        ];
+        let t = NerfTransforms {
+            camera_model: "OPENCV".into(),
+            intrinsics: intr,
+            k1: 0.0,
+            k2: 0.0,
+            p1: 0.0,
+            p2: 0.0,
+            frames: poses
+                .iter()
+                .enumerate()
+                .map(|(k, (a, c, i))| NerfFrame {
+                    file_path: format!("IMG_{:06}.jpg", k + 1),
+                    transform_matrix: rows(&camera_to_world_gl(a, *c)),
+                    intrinsics: *i,
+                })
+                .collect(),
+        };
+        let c = colmap_text(&t);
+        let cams: Vec<Vec<f64>> = c
+            .cameras
+            .lines()
+            .filter(|l| !l.starts_with('#'))
+            .map(|l| l.split(' ').skip(2).map(|x| x.parse().unwrap()).collect())
+            .collect();
+        assert_eq!(
+            cams,
+            [
+                vec![640.0, 480.0, 465.0, 465.0, 320.0, 240.0],
+                vec![640.0, 480.0, 600.5, 465.0, 300.25, 240.0]
+            ]
+        );
+        let images: Vec<&str> = c.images.lines().filter(|l| !l.starts_with('#')).collect();
+        // Two lines an image, the second (its 2-D points) empty.
+        assert_eq!(images.len(), 4);
+        assert!(images[1].is_empty() && images[3].is_empty());
+        assert!(c.points.lines().all(|l| l.starts_with('#')));
+        let colmap = |k: usize, x: DVec3| {
+            let f: Vec<&str> = images[2 * k].split(' ').collect();
+            assert_eq!(f[0], (k + 1).to_string());
+            assert_eq!(f[9], format!("IMG_{:06}.jpg", k + 1));
+            let n: Vec<f64> = f[1..8].iter().map(|x| x.parse().unwrap()).collect();
+            let q = glam::DQuat::from_xyzw(n[1], n[2], n[3], n[0]);
+            assert!(q.w >= 0.0 && (q.length() - 1.0).abs() < 1e-12);
+            let xc = q * x + DVec3::new(n[4], n[5], n[6]);
+            let cam = &cams[f[8].parse::<usize>().unwrap() - 1];
+            (cam[2] * xc.x / xc.z + cam[4], cam[3] * xc.y / xc.z + cam[5])
+        };
+        let gl = |k: usize, x: DVec3| {
+            let (a, c, i) = &poses[k];
+            let i = i.unwrap_or(intr);
+            let p = camera_to_world_gl(a, *c).inverse().transform_point3(x);
+            (i.cx + i.fl_x * p.x / -p.z, i.cy - i.fl_y * p.y / -p.z)
+        };
+        let below = colmap(0, DVec3::new(10.0, -5.0, 0.0));
+        assert!((below.0 - 320.0).abs() < 1e-9 && (below.1 - 240.0).abs() < 1e-9);
+        let north = colmap(0, DVec3::new(10.0, -4.0, 0.0));
+        assert!((north.0 - (320.0 + 465.0 / 40.0)).abs() < 1e-9 && (north.1 - 240.0).abs() < 1e-9);
+        for k in 0..2 {
+            for x in [
+                DVec3::new(10.0, -5.0, 0.0),
+                DVec3::new(14.0, 2.0, 3.5),
+                DVec3::new(-6.0, 30.0, 10.0),
+            ] {
+                let (a, b) = (colmap(k, x), gl(k, x));
+                assert!(
+                    (a.0 - b.0).abs() < 1e-7 && (a.1 - b.1).abs() < 1e-7,
+                    "frame {k}, {x}: {a:?} {b:?}"
+                );
+            }
+        }
     }
 
     #[test]

@@ -5,7 +5,9 @@
 //! captures it took and named in `geo.txt`.
 
 use super::{bad, emit};
-use alfd::capture::export::{Skip, GEO_TXT, TRANSFORMS_JSON};
+use alfd::capture::export::{
+    Skip, COLMAP_CAMERAS, COLMAP_IMAGES, COLMAP_POINTS, GEO_TXT, TRANSFORMS_JSON,
+};
 use alfd::capture::external::{read_camera_dirs, CameraDir, PairedBy, Pairing};
 use alfd::capture::store::MANIFEST;
 use alfd::capture::{
@@ -300,8 +302,9 @@ pub fn report(dir: &Path, done: &FlightExport, hint_images: bool) -> String {
     let _ = match e.transform_frames {
         Some(n) => writeln!(
             s,
-            "{TRANSFORMS_JSON:<16} {n} frames{}",
-            skipped(&e.transforms_skipped)
+            "{TRANSFORMS_JSON:<16} {n} frames{}\nCOLMAP model     {COLMAP_CAMERAS}, {COLMAP_IMAGES}, {COLMAP_POINTS}: the same {n} images and poses (colmap point_triangulator --input_path {})",
+            skipped(&e.transforms_skipped),
+            dir.display()
         ),
         None => writeln!(
             s,

@@ -301,7 +301,7 @@ pub fn run(a: Args) -> Result<ExitCode> {
         ));
     }
     text.push_str(&format!(
-        "images          {:.1} MB, telemetry.tlog {} messages, exports: geo.txt {} lines, transforms.json {} frames\n",
+        "images          {:.1} MB, telemetry.tlog {} messages, exports: geo.txt {} lines, transforms.json and the COLMAP model {} frames\n",
         out.image_bytes as f64 / 1e6,
         r.tlog_frames,
         // The card's pictures, once paired, are geo.txt's lines.
