@@ -622,6 +622,52 @@ fn an_external_cameras_pictures_are_paired_with_their_captures() {
     let (status, _, stderr) = alfd_export_images(&flight_dir, &tmp.path().join("nowhere"));
     assert_eq!(status.code(), Some(2), "{stderr}");
     assert!(stderr.contains("not a directory"), "{stderr}");
+
+    // The camera's delay stated: each picture where the vehicle was 80 ms after its
+    // trigger, along the way to the next capture (the last: from the one before).
+    let delay = |more: &[&str]| {
+        let mut args: Vec<&std::ffi::OsStr> = vec!["--images".as_ref(), card.as_os_str()];
+        args.extend(more.iter().map(|a| std::ffi::OsStr::new(*a)));
+        alfd_export_with(&flight_dir, &args)
+    };
+    let (status, stdout, stderr) = delay(&["--camera-delay-s", "0.08"]);
+    assert!(status.success(), "{stderr}");
+    let moved = fs::read_to_string(flight_dir.join(GEO_TXT)).unwrap();
+    let moved: Vec<&str> = moved.lines().skip(1).collect();
+    assert_eq!(moved.len(), 9);
+    for (line, (seq, name)) in moved.iter().zip(&name_of) {
+        let k = *seq as usize - 1;
+        let (a, b) = if k + 1 < records.len() {
+            (&records[k], &records[k + 1])
+        } else {
+            (&records[k - 1], &records[k])
+        };
+        let dt_s = (b.time_unix_us.unwrap() - a.time_unix_us.unwrap()) as f64 * 1e-6;
+        let f = 0.08 / dt_s;
+        let r = &records[k];
+        let lat = r.position.lat_deg + (b.position.lat_deg - a.position.lat_deg) * f;
+        let lon = r.position.lon_deg + (b.position.lon_deg - a.position.lon_deg) * f;
+        let want = format!("{name} {lon:.9} {lat:.9} {:.3}", r.position.alt_m);
+        assert_eq!(*line, want);
+    }
+    assert!(
+        stdout.contains(
+            "camera delay     0.080 s: 9 pictures moved to the exposure along the way flown"
+        ),
+        "{stdout}"
+    );
+    // The manifest keeps the triggers' places.
+    let kept = alfd::capture::read_manifest(&flight_dir.join("manifest.jsonl")).unwrap();
+    assert_eq!(kept.records, records);
+    for bad in ["-0.1", "3", "nan"] {
+        let (status, _, stderr) = delay(&["--camera-delay-s", bad]);
+        assert_eq!(status.code(), Some(2), "{bad}: {stderr}");
+        assert!(stderr.contains("0 to 2 s"), "{bad}: {stderr}");
+    }
+    let (status, _, stderr) =
+        alfd_export_with(&flight_dir, &["--camera-delay-s".as_ref(), "0.08".as_ref()]);
+    assert_eq!(status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("--images"), "{stderr}");
 }
 
 /// A flight the camera spread over two folders of its card (it starts a new one every

@@ -13,7 +13,9 @@ use crate::core::attitude::{body_to_ned, camera_to_body};
 use glam::{DMat3, DMat4, DVec3, DVec4};
 use serde::{Deserialize, Serialize};
 
-use super::external::{is_external, pair, CameraDir, PairError, Pairing, Trigger};
+use super::external::{
+    is_external, move_to_exposure, pair, CameraDir, Moved, PairError, Pairing, Trigger,
+};
 use super::record::{is_image_name_for, Attitude, CameraIntrinsics, CaptureRecord};
 use super::store::{parse_manifest, CaptureStore, DirStore, Manifest, StoreError, MANIFEST};
 use std::collections::BTreeMap;
@@ -458,7 +460,17 @@ pub fn export_flight_with_camera(
     dir: &Path,
     camera: &CameraDir,
 ) -> Result<(FlightExport, Pairing), ExportError> {
-    let (mut store, m) = open_flight(dir)?;
+    export_flight_with_camera_delay(dir, camera, None).map(|(e, p, _)| (e, p))
+}
+
+/// [`export_flight_with_camera`], each paired picture placed where the vehicle was
+/// `delay_s` after its trigger ([`move_to_exposure`]) when a delay is given.
+pub fn export_flight_with_camera_delay(
+    dir: &Path,
+    camera: &CameraDir,
+    delay_s: Option<f64>,
+) -> Result<(FlightExport, Pairing, Option<Moved>), ExportError> {
+    let (mut store, mut m) = open_flight(dir)?;
     let triggers: Vec<Trigger> = m
         .records
         .iter()
@@ -474,7 +486,12 @@ pub fn export_flight_with_camera(
         .iter()
         .map(|&(seq, i)| (seq, camera.images[i].name.clone()))
         .collect();
-    Ok((write_flight(&mut store, dir, m, &external)?, pairing))
+    // Only the exports see the moved places: the manifest keeps the triggers'.
+    let moved = delay_s.map(|d| {
+        let seqs: Vec<u64> = pairing.pairs.iter().map(|&(seq, _)| seq).collect();
+        move_to_exposure(&mut m.records, &seqs, d)
+    });
+    Ok((write_flight(&mut store, dir, m, &external)?, pairing, moved))
 }
 
 fn open_flight(dir: &Path) -> Result<(DirStore, Manifest), StoreError> {

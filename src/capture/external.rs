@@ -201,6 +201,91 @@ impl Trigger {
     }
 }
 
+/// The longest way between two captures a camera's delay is interpolated over: past it
+/// (a pause, a hover, a gap in the log) the vehicle's path is not known to be straight.
+pub const DELAY_GAP_MAX_S: f64 = 10.0;
+
+/// What [`move_to_exposure`] did.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Moved {
+    /// How far each moved capture went (metres), in capture order.
+    pub moved_m: Vec<f64>,
+    /// Captures left at their trigger's place: no neighbouring capture within
+    /// [`DELAY_GAP_MAX_S`] on one clock to tell the way the vehicle went.
+    pub left: Vec<u64>,
+}
+
+/// Moves the captures `seqs` of `records` (capture order) to where the vehicle was
+/// `delay_s` after their trigger, when the camera exposes: along the way to the next
+/// capture, in proportion to the time (the last one along the way from the one before).
+/// Both of a pair's times are read on one clock, UTC when both have it, else the boot
+/// clock (the next must be later: an autopilot that rebooted restarts it). Geodetic and
+/// local coordinates move alike; attitude is not touched. Pure.
+pub fn move_to_exposure(records: &mut [CaptureRecord], seqs: &[u64], delay_s: f64) -> Moved {
+    let mut moved = Moved::default();
+    let time_between = |a: &CaptureRecord, b: &CaptureRecord| -> Option<f64> {
+        let dt = match (a.time_unix_us, b.time_unix_us) {
+            (Some(x), Some(y)) => (y as f64 - x as f64) * 1e-6,
+            _ => (b.time_boot_us as f64 - a.time_boot_us as f64) * 1e-6,
+        };
+        (dt > 0.0 && dt <= DELAY_GAP_MAX_S).then_some(dt)
+    };
+    let finite = |r: &CaptureRecord| {
+        let p = &r.position;
+        [
+            p.lat_deg,
+            p.lon_deg,
+            p.alt_m,
+            p.rel_alt_m,
+            p.east_m,
+            p.north_m,
+            p.up_m,
+        ]
+        .iter()
+        .all(|v| v.is_finite())
+    };
+    let wanted: std::collections::BTreeSet<u64> = seqs.iter().copied().collect();
+    let original: Vec<CaptureRecord> = records.to_vec();
+    for (k, r) in records.iter_mut().enumerate() {
+        if !wanted.contains(&r.seq) {
+            continue;
+        }
+        // The segment the exposure lies on: to the next capture, or from the one before.
+        let segment = original
+            .get(k + 1)
+            .filter(|n| finite(n))
+            .and_then(|n| Some((&original[k], n, time_between(&original[k], n)?)))
+            .or_else(|| {
+                let b = original.get(k.checked_sub(1)?).filter(|b| finite(b))?;
+                Some((b, &original[k], time_between(b, &original[k])?))
+            });
+        let Some((a, b, dt)) = segment.filter(|_| finite(r)) else {
+            moved.left.push(r.seq);
+            continue;
+        };
+        let f = delay_s / dt;
+        let lerp = |x: f64, y: f64| (y - x) * f;
+        let (pa, pb) = (&a.position, &b.position);
+        let p = &mut r.position;
+        p.lat_deg += lerp(pa.lat_deg, pb.lat_deg);
+        p.lon_deg += lerp(pa.lon_deg, pb.lon_deg);
+        p.alt_m += lerp(pa.alt_m, pb.alt_m);
+        p.rel_alt_m += lerp(pa.rel_alt_m, pb.rel_alt_m);
+        let d = [
+            lerp(pa.east_m, pb.east_m),
+            lerp(pa.north_m, pb.north_m),
+            lerp(pa.up_m, pb.up_m),
+        ];
+        p.east_m += d[0];
+        p.north_m += d[1];
+        p.up_m += d[2];
+        moved
+            .moved_m
+            .push((d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt());
+    }
+    moved
+}
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum PairedBy {
     /// The n-th picture with the n-th capture; `checked` when the pictures' times
@@ -591,6 +676,47 @@ mod tests {
             ]
         );
         assert_eq!(c.bad_names, ["102 CANON/IMG_0001.JPG"]);
+    }
+
+    /// A picture moves by the delay's share of the way to the next capture (the last:
+    /// of the way from the one before), on UTC or, without it, the boot clock; one with
+    /// no neighbour on one clock within 10 s stays at its trigger, as do the captures
+    /// not asked for.
+    #[test]
+    fn a_camera_delay_moves_a_picture_along_the_way_flown() {
+        use crate::capture::record::tests::sample;
+        // 1.1 m north every 0.25 s: 4.4 m/s.
+        let mut records: Vec<CaptureRecord> = (1..=6).map(sample).collect();
+        // Capture 4 on the boot clock alone, 20 s later (a hover), and 5 after a reboot.
+        records[3].time_unix_us = None;
+        records[3].time_boot_us += 20_000_000;
+        records[4].time_unix_us = None;
+        records[4].time_boot_us = 1_000_000;
+        let before = records.clone();
+        let m = move_to_exposure(&mut records, &[1, 2, 4, 5, 6], 0.05);
+        let north = |r: &CaptureRecord| r.position.north_m;
+        // 0.05 s of 0.25 s: a fifth of 1.1 m.
+        for k in [0, 1] {
+            assert!((north(&records[k]) - north(&before[k]) - 0.22).abs() < 1e-12);
+            let dlat = records[k].position.lat_deg - before[k].position.lat_deg;
+            assert!((dlat - 0.2e-5).abs() < 1e-13);
+        }
+        assert_eq!(records[2], before[2], "not asked for");
+        // 4: 20 s after 3 on the boot clock, and 5 before it (a reboot): no way known.
+        // 5: the boot clock back at 1 s, 120 s before 6's; 4's is later than its own.
+        // 6: the last, 120 s after 5 on the boot clock (5 has no UTC).
+        assert_eq!(m.left, [4, 5, 6]);
+        assert_eq!(m.moved_m.len(), 2);
+        assert!(m.moved_m.iter().all(|d| (d - 0.22).abs() < 1e-12));
+        // The last, from the one before, when they share a clock.
+        let mut two: Vec<CaptureRecord> = (1..=2).map(sample).collect();
+        let m = move_to_exposure(&mut two, &[2], 0.125);
+        assert_eq!(m.left, Vec::<u64>::new());
+        assert!((north(&two[1]) - 2.2 - 0.55).abs() < 1e-12);
+        // A neighbour with no position tells nothing.
+        let mut two: Vec<CaptureRecord> = (1..=2).map(sample).collect();
+        two[1].position.east_m = f64::NAN;
+        assert_eq!(move_to_exposure(&mut two, &[1], 0.1).left, [1]);
     }
 
     /// Triggers at the given boot times, seq from 1, UTC 1.78e9 s ahead of boot.

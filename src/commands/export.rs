@@ -5,14 +5,15 @@
 //! captures it took and named in `geo.txt`.
 
 use super::{bad, emit};
+use alfd::capture::export::export_flight_with_camera_delay;
 use alfd::capture::export::{
     Skip, COLMAP_CAMERAS, COLMAP_IMAGES, COLMAP_POINTS, GEO_TXT, TRANSFORMS_JSON,
 };
-use alfd::capture::external::{read_camera_dirs, CameraDir, PairedBy, Pairing};
-use alfd::capture::store::MANIFEST;
-use alfd::capture::{
-    export_flight, export_flight_with_camera, ExportError, FlightExport, StoreError,
+use alfd::capture::external::{
+    read_camera_dirs, CameraDir, Moved, PairedBy, Pairing, DELAY_GAP_MAX_S,
 };
+use alfd::capture::store::MANIFEST;
+use alfd::capture::{export_flight, ExportError, FlightExport, StoreError};
 use anyhow::Result;
 use std::collections::BTreeMap;
 use std::fmt::Write;
@@ -30,6 +31,18 @@ pub struct Args {
     /// that holds pictures. The folders are only read.
     #[arg(long, value_name = "DIR")]
     images: Vec<PathBuf>,
+    /// The external camera's delay from trigger to exposure, seconds (its shutter
+    /// lag; 0 to 2): each paired picture's geo.txt line is placed where the vehicle
+    /// was then, along the way to the next capture, instead of at the trigger.
+    /// Without it, at the trigger: the pictures' times cannot tell the delay from
+    /// the camera clock's error.
+    #[arg(
+        long,
+        value_name = "SECONDS",
+        requires = "images",
+        allow_negative_numbers = true
+    )]
+    camera_delay_s: Option<f64>,
 }
 
 pub fn run(a: Args) -> Result<ExitCode> {
@@ -44,6 +57,13 @@ pub fn run(a: Args) -> Result<ExitCode> {
         StoreError::InUse { .. } => bad(e.to_string()),
         e => anyhow::Error::new(e),
     };
+    if let Some(d) = a.camera_delay_s {
+        if !(d.is_finite() && (0.0..=2.0).contains(&d)) {
+            return Err(bad(format!(
+                "--camera-delay-s {d}: a camera's delay from trigger to exposure is 0 to 2 s"
+            )));
+        }
+    }
     if a.images.is_empty() {
         let done = export_flight(&dir).map_err(in_use)?;
         emit(&report(&dir, &done, true))?;
@@ -106,12 +126,16 @@ pub fn run(a: Args) -> Result<ExitCode> {
         }
         return Err(bad(msg));
     }
-    let (done, pairing) = export_flight_with_camera(&dir, &camera).map_err(|e| match e {
+    let (done, pairing, moved) = export_flight_with_camera_delay(&dir, &camera, a.camera_delay_s)
+        .map_err(|e| match e {
         ExportError::Store(e) => in_use(e),
         e @ ExportError::Pair { .. } => bad(format!("--images {e}")),
     })?;
     let mut s = report(&dir, &done, false);
     s += &camera_report(&camera, &pairing);
+    if let (Some(d), Some(m)) = (a.camera_delay_s, moved) {
+        s += &delay_report(d, &m);
+    }
     emit(&s)?;
     Ok(ExitCode::SUCCESS)
 }
@@ -250,6 +274,34 @@ pub fn camera_report(camera: &CameraDir, p: &Pairing) -> String {
         s,
         "note             the camera's pictures keep their names and stay where they are; their geo.txt lines give positions and no angles (alfd does not know how the camera is mounted), and transforms.json has none of them (nor its lens)"
     );
+    s
+}
+
+/// Where the camera's delay moved its pictures, a line (two with captures left).
+fn delay_report(delay_s: f64, m: &Moved) -> String {
+    let mut s = String::new();
+    let mut d = m.moved_m.clone();
+    d.sort_by(f64::total_cmp);
+    let moved = match d.as_slice() {
+        [] => "none moved".to_owned(),
+        d => format!(
+            "{} moved to the exposure along the way flown (median {:.2} m, worst {:.2} m)",
+            count(d.len(), "picture"),
+            d[d.len() / 2],
+            d[d.len() - 1]
+        ),
+    };
+    let _ = writeln!(s, "camera delay     {delay_s:.3} s: {moved}");
+    if !m.left.is_empty() {
+        let seqs: Vec<String> = m.left.iter().map(u64::to_string).collect();
+        let seqs: Vec<&str> = seqs.iter().map(String::as_str).collect();
+        let _ = writeln!(
+            s,
+            "left at trigger  {} with no capture within {DELAY_GAP_MAX_S} s before or after to tell the way: seq {}",
+            count(seqs.len(), "picture"),
+            some(&seqs)
+        );
+    }
     s
 }
 
