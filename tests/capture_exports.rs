@@ -497,6 +497,35 @@ fn camera_picture(time_unix_us: u64) -> Vec<u8> {
     encode_jpeg(&rgb, W, H, 80, Some(exif_app1(&g, W, H).unwrap())).unwrap()
 }
 
+/// `n` (at most 10) captures of an external camera in `mode`, logged in `flight_dir`: no
+/// image, 1.1 m apart north, at uneven intervals (1.5 to 3.3 s) as an adaptive spacing
+/// gives, with UTC and boot times.
+fn external_flight(
+    flight_dir: &std::path::Path,
+    n: usize,
+    mode: CaptureMode,
+) -> Vec<alfd::capture::CaptureRecord> {
+    let gaps_s = [0.0, 2.1, 1.5, 3.3, 2.7, 1.9, 2.4, 3.0, 1.6, 2.2];
+    let mut t_us = 1_780_123_456_000_000u64;
+    let mut store = DirStore::open(flight_dir).unwrap();
+    gaps_s[..n]
+        .iter()
+        .enumerate()
+        .map(|(k, gap)| {
+            t_us += (gap * 1e6) as u64;
+            let seq = k as u64 + 1;
+            let mut r = record(seq, 47.0 + seq as f64 * 1e-5, 8.5, 500.0, 0.0, 0.0);
+            r.image = None;
+            r.intrinsics = None;
+            r.capture_mode = mode;
+            r.time_unix_us = Some(t_us);
+            r.time_boot_us = t_us - 1_780_000_000_000_000;
+            log_capture(&mut store, &r, None).unwrap();
+            r
+        })
+        .collect()
+}
+
 /// A `camera_command` flight: the camera keeps its pictures on its card, the
 /// manifest has a line per trigger. `alfd export --images` pairs the card's
 /// pictures with the captures (here by time: a shot on the ground before take-off
@@ -509,27 +538,7 @@ fn an_external_cameras_pictures_are_paired_with_their_captures() {
     let flight_dir = tmp.path().join("flight-001");
     let card = tmp.path().join("DCIM");
     fs::create_dir(&card).unwrap();
-    // Uneven intervals (1.5 to 3.3 s), as an adaptive spacing gives.
-    let gaps_s = [0.0, 2.1, 1.5, 3.3, 2.7, 1.9, 2.4, 3.0, 1.6, 2.2];
-    let mut t_us = 1_780_123_456_000_000u64;
-    let mut records = Vec::new();
-    for (k, gap) in gaps_s.iter().enumerate() {
-        t_us += (gap * 1e6) as u64;
-        let seq = k as u64 + 1;
-        let mut r = record(seq, 47.0 + seq as f64 * 1e-5, 8.5, 500.0, 0.0, 0.0);
-        r.image = None;
-        r.intrinsics = None;
-        r.capture_mode = CaptureMode::CameraCommand;
-        r.time_unix_us = Some(t_us);
-        r.time_boot_us = t_us - 1_780_000_000_000_000;
-        records.push(r);
-    }
-    {
-        let mut store = DirStore::open(&flight_dir).unwrap();
-        for r in &records {
-            log_capture(&mut store, r, None).unwrap();
-        }
-    }
+    let records = external_flight(&flight_dir, 10, CaptureMode::CameraCommand);
     // A shot on the ground five minutes before; capture 4's trigger missed.
     let first_us = records[0].time_unix_us.unwrap();
     fs::write(
@@ -681,24 +690,7 @@ fn a_flight_over_two_folders_of_the_card_is_paired_as_one() {
     let (a, b) = (dcim.join("100MEDIA"), dcim.join("101MEDIA"));
     fs::create_dir_all(&a).unwrap();
     fs::create_dir_all(&b).unwrap();
-    let gaps_s = [0.0, 2.1, 1.5, 3.3, 2.7, 1.9, 2.4, 3.0];
-    let mut t_us = 1_780_123_456_000_000u64;
-    let mut records = Vec::new();
-    {
-        let mut store = DirStore::open(&flight_dir).unwrap();
-        for (k, gap) in gaps_s.iter().enumerate() {
-            t_us += (gap * 1e6) as u64;
-            let seq = k as u64 + 1;
-            let mut r = record(seq, 47.0 + seq as f64 * 1e-5, 8.5, 500.0, 0.0, 0.0);
-            r.image = None;
-            r.intrinsics = None;
-            r.capture_mode = CaptureMode::AutopilotDistance;
-            r.time_unix_us = Some(t_us);
-            r.time_boot_us = t_us - 1_780_000_000_000_000;
-            log_capture(&mut store, &r, None).unwrap();
-            records.push(r);
-        }
-    }
+    let records = external_flight(&flight_dir, 8, CaptureMode::AutopilotDistance);
     // The first five in 100MEDIA (DJI_0995 … DJI_0999), the rest in 101MEDIA.
     let mut want = Vec::new();
     for (k, r) in records.iter().enumerate() {

@@ -25,6 +25,46 @@ fn flight_dir(out: &Path) -> PathBuf {
     dirs.pop().unwrap()
 }
 
+/// `alfd sim --length-m LENGTH` into `tmp`: its flight directory.
+fn sim_flight(tmp: &Path, length_m: &str) -> PathBuf {
+    let out = tmp.join("sim");
+    let sim = Command::new(env!("CARGO_BIN_EXE_alfd"))
+        .args(["sim", "--length-m", length_m, "--no-progress", "--out"])
+        .arg(&out)
+        .output()
+        .expect("alfd runs");
+    assert!(
+        sim.status.success(),
+        "alfd sim failed: {}",
+        String::from_utf8_lossy(&sim.stderr)
+    );
+    flight_dir(&out)
+}
+
+/// `scripts/NAME FLIGHT --work TMP/colmap --json …`: its figures.
+fn script(tmp: &Path, name: &str, flight: &Path) -> Value {
+    let json = tmp.join("figures.json");
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("scripts")
+        .join(name);
+    let run = Command::new("python3")
+        .arg(path)
+        .arg(flight)
+        .arg("--work")
+        .arg(tmp.join("colmap"))
+        .arg("--json")
+        .arg(&json)
+        .output()
+        .expect("python3 runs");
+    println!("{}", String::from_utf8_lossy(&run.stdout));
+    assert!(
+        run.status.success(),
+        "{name} failed: {}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    serde_json::from_str(&std::fs::read_to_string(&json).expect("the --json file")).unwrap()
+}
+
 fn number(report: &Value, path: &[&str]) -> f64 {
     let v = path.iter().fold(report, |v, k| &v[*k]);
     v.as_f64()
@@ -37,24 +77,13 @@ fn colmap_registers_a_short_sim_flight_where_its_transforms_say() {
         return;
     }
     let tmp = tempfile::tempdir().unwrap();
-    let out = tmp.path().join("sim");
     // 200 m of the default scene's line at 100 m (the issue's own flight): about 200 640 x 480
     // captures, two to three minutes of COLMAP on two cores. The first 60 m are open fields,
     // flat ground on which a nadir camera's sideways position and its roll trade against each
     // other in any reconstruction: COLMAP put single centres 0.3-0.9 m off there (0.5-1.5 %
     // of 60 m) while alfd's logged attitude was within 0.002 deg of the picture's. By 200 m
     // the line has crossed the courtyard block, whose relief fixes them: worst 0.20-0.23 m.
-    let sim = Command::new(env!("CARGO_BIN_EXE_alfd"))
-        .args(["sim", "--length-m", "200", "--no-progress", "--out"])
-        .arg(&out)
-        .output()
-        .expect("alfd runs");
-    assert!(
-        sim.status.success(),
-        "alfd sim failed: {}",
-        String::from_utf8_lossy(&sim.stderr)
-    );
-    let flight = flight_dir(&out);
+    let flight = sim_flight(tmp.path(), "200");
     let jpegs = std::fs::read_dir(&flight)
         .unwrap()
         .filter(|e| {
@@ -66,25 +95,7 @@ fn colmap_registers_a_short_sim_flight_where_its_transforms_say() {
         })
         .count();
 
-    let json = tmp.path().join("colmap.json");
-    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/scripts/colmap_judge.py");
-    let judge = Command::new("python3")
-        .arg(script)
-        .arg(&flight)
-        .arg("--work")
-        .arg(tmp.path().join("colmap"))
-        .arg("--json")
-        .arg(&json)
-        .output()
-        .expect("python3 runs");
-    println!("{}", String::from_utf8_lossy(&judge.stdout));
-    assert!(
-        judge.status.success(),
-        "colmap_judge.py failed: {}",
-        String::from_utf8_lossy(&judge.stderr)
-    );
-    let report: Value =
-        serde_json::from_str(&std::fs::read_to_string(&json).expect("the --json file")).unwrap();
+    let report = script(tmp.path(), "colmap_judge.py", &flight);
 
     let count = |key: &str| {
         report[key]
@@ -199,37 +210,8 @@ fn colmap_triangulates_a_sim_flight_from_its_own_model() {
         return;
     }
     let tmp = tempfile::tempdir().unwrap();
-    let out = tmp.path().join("sim");
-    let sim = Command::new(env!("CARGO_BIN_EXE_alfd"))
-        .args(["sim", "--length-m", "60", "--no-progress", "--out"])
-        .arg(&out)
-        .output()
-        .expect("alfd runs");
-    assert!(
-        sim.status.success(),
-        "alfd sim failed: {}",
-        String::from_utf8_lossy(&sim.stderr)
-    );
-    let flight = flight_dir(&out);
-    let json = tmp.path().join("known.json");
-    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/scripts/colmap_known_poses.py");
-    let run = Command::new("python3")
-        .arg(script)
-        .arg(&flight)
-        .arg("--work")
-        .arg(tmp.path().join("colmap"))
-        .arg("--json")
-        .arg(&json)
-        .output()
-        .expect("python3 runs");
-    println!("{}", String::from_utf8_lossy(&run.stdout));
-    assert!(
-        run.status.success(),
-        "colmap_known_poses.py failed: {}",
-        String::from_utf8_lossy(&run.stderr)
-    );
-    let report: Value =
-        serde_json::from_str(&std::fs::read_to_string(&json).expect("the --json file")).unwrap();
+    let flight = sim_flight(tmp.path(), "60");
+    let report = script(tmp.path(), "colmap_known_poses.py", &flight);
     let images = report["images"].as_u64().expect("images");
     assert!(
         images >= 40,

@@ -878,16 +878,7 @@ impl Engine {
                 // picture is known to the world by its CAMERA_FEEDBACK alone.
                 let index = self.capture_seq + 1;
                 self.capture_seq = index;
-                let now = mono_ns();
-                let tr = self.shared.truth(mono);
-                let feedback = self.feedback(index, mono, now, &tr);
-                self.send(io, &feedback, now, To::Both);
-                self.write_truth(why, Some(index), tr);
-                let _ = self.events.send(SimEvent::Capture {
-                    mono_ns: mono,
-                    seq: index,
-                    truth: tr,
-                });
+                self.fed_back(io, index, mono, mono_ns(), why);
                 return true;
             }
             CameraBackend::Trigger => {}
@@ -933,6 +924,13 @@ impl Engine {
         });
         self.send(io, &cmd, now, To::Only(Side::Main));
         self.capture_seq = index;
+        self.fed_back(io, index, mono, now, why);
+        true
+    }
+
+    /// Picture `index`, taken at `mono`, said by ArduPilot's CAMERA_FEEDBACK (sent at `now`),
+    /// written to the truth and told to the simulator's subscribers.
+    fn fed_back(&mut self, io: &Links, index: u32, mono: u64, now: u64, why: &str) {
         let tr = self.shared.truth(mono);
         let feedback = self.feedback(index, mono, now, &tr);
         self.send(io, &feedback, now, To::Both);
@@ -942,7 +940,6 @@ impl Engine {
             seq: index,
             truth: tr,
         });
-        true
     }
 
     /// ArduPilot's CAMERA_FEEDBACK for picture `index` taken at `mono` (sent at `now`): stamped
