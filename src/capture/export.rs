@@ -456,16 +456,10 @@ pub fn export_flight(dir: &Path) -> Result<FlightExport, StoreError> {
 /// [`read_camera_dir`](super::external::read_camera_dir)) paired with the captures
 /// it took and named on their `geo.txt` lines. Nothing is written when they
 /// cannot be paired.
+///
+/// With `delay_s`, each paired picture is placed where the vehicle was that long after
+/// its trigger ([`move_to_exposure`]).
 pub fn export_flight_with_camera(
-    dir: &Path,
-    camera: &CameraDir,
-) -> Result<(FlightExport, Pairing), ExportError> {
-    export_flight_with_camera_delay(dir, camera, None).map(|(e, p, _)| (e, p))
-}
-
-/// [`export_flight_with_camera`], each paired picture placed where the vehicle was
-/// `delay_s` after its trigger ([`move_to_exposure`]) when a delay is given.
-pub fn export_flight_with_camera_delay(
     dir: &Path,
     camera: &CameraDir,
     delay_s: Option<f64>,

@@ -79,31 +79,23 @@ pub fn read_camera_dir(dir: &Path) -> Result<CameraDir, StoreError> {
 /// [`CameraDir::qualified`] says which name was shared. Ordered by capture time when
 /// every picture has one, else by folder (in the order given), then name.
 pub fn read_camera_dirs(dirs: &[PathBuf]) -> Result<CameraDir, StoreError> {
-    let mut images = Vec::new();
     let mut other_files = 0;
     let mut bad_names = Vec::new();
-    // (folder, file name) of each picture, for the names below.
-    let mut whose = Vec::new();
+    // Each picture with the index of its folder in `dirs`.
+    let mut keyed: Vec<(usize, CameraImage)> = Vec::new();
     for (k, dir) in dirs.iter().enumerate() {
-        let before = images.len();
-        read_one_dir(dir, &mut images, &mut other_files, &mut bad_names)?;
-        whose.extend(std::iter::repeat_n(k, images.len() - before));
+        let images = read_one_dir(dir, &mut other_files, &mut bad_names)?;
+        keyed.extend(images.into_iter().map(|i| (k, i)));
     }
-    let qualified = if dirs.len() > 1 {
-        let mut names: Vec<(&str, usize)> = images
-            .iter()
-            .zip(&whose)
-            .map(|(i, &k)| (i.name.as_str(), k))
-            .collect();
-        names.sort();
+    // Names are unique within a folder: a name found twice is in two folders.
+    let qualified = {
+        let mut names: Vec<&str> = keyed.iter().map(|(_, i)| i.name.as_str()).collect();
+        names.sort_unstable();
         names
             .windows(2)
-            .find(|w| w[0].0 == w[1].0)
-            .map(|w| w[0].0.to_owned())
-    } else {
-        None
+            .find(|w| w[0] == w[1])
+            .map(|w| w[0].to_owned())
     };
-    let mut keyed: Vec<(usize, CameraImage)> = whose.into_iter().zip(images).collect();
     if qualified.is_some() {
         for (k, i) in &mut keyed {
             let folder = dirs[*k]
@@ -121,7 +113,6 @@ pub fn read_camera_dirs(dirs: &[PathBuf]) -> Result<CameraDir, StoreError> {
             ok
         });
     }
-    // Folder by folder, as given, when names decide the order.
     let by_time = !keyed.is_empty() && keyed.iter().all(|(_, i)| i.taken.is_some());
     if by_time {
         keyed.sort_by(|(ka, a), (kb, b)| {
@@ -131,6 +122,7 @@ pub fn read_camera_dirs(dirs: &[PathBuf]) -> Result<CameraDir, StoreError> {
                 .then_with(|| a.name.cmp(&b.name))
         });
     } else {
+        // Folder by folder, as given, when names decide the order.
         keyed.sort_by(|(ka, a), (kb, b)| ka.cmp(kb).then_with(|| a.name.cmp(&b.name)));
     }
     let images = keyed.into_iter().map(|(_, i)| i).collect();
@@ -146,12 +138,14 @@ pub fn read_camera_dirs(dirs: &[PathBuf]) -> Result<CameraDir, StoreError> {
     })
 }
 
+/// The JPEG pictures of one folder, counting the other files and the names geo.txt
+/// cannot carry.
 fn read_one_dir(
     dir: &Path,
-    images: &mut Vec<CameraImage>,
     other_files: &mut usize,
     bad_names: &mut Vec<String>,
-) -> Result<(), StoreError> {
+) -> Result<Vec<CameraImage>, StoreError> {
+    let mut images = Vec::new();
     for entry in std::fs::read_dir(dir).map_err(|e| io_error(dir, e))? {
         let entry = entry.map_err(|e| io_error(dir, e))?;
         let path = entry.path();
@@ -178,7 +172,7 @@ fn read_one_dir(
         let taken = find_exif_app1(&head).and_then(parse_exif_taken);
         images.push(CameraImage { name, taken });
     }
-    Ok(())
+    Ok(images)
 }
 
 /// A capture the camera was to take a picture for, as [`pair`] needs it.
@@ -230,7 +224,8 @@ pub fn move_to_exposure(records: &mut [CaptureRecord], seqs: &[u64], delay_s: f6
         };
         (dt > 0.0 && dt <= DELAY_GAP_MAX_S).then_some(dt)
     };
-    let finite = |r: &CaptureRecord| {
+    // A position's seven coordinates, all moved alike.
+    let coords = |r: &CaptureRecord| {
         let p = &r.position;
         [
             p.lat_deg,
@@ -241,47 +236,49 @@ pub fn move_to_exposure(records: &mut [CaptureRecord], seqs: &[u64], delay_s: f6
             p.north_m,
             p.up_m,
         ]
-        .iter()
-        .all(|v| v.is_finite())
     };
+    let finite = |r: &CaptureRecord| coords(r).iter().all(|v| v.is_finite());
     let wanted: std::collections::BTreeSet<u64> = seqs.iter().copied().collect();
-    let original: Vec<CaptureRecord> = records.to_vec();
-    for (k, r) in records.iter_mut().enumerate() {
+    // Every move is read from the places as logged, then made.
+    let mut moves = Vec::new();
+    for (k, r) in records.iter().enumerate() {
         if !wanted.contains(&r.seq) {
             continue;
         }
         // The segment the exposure lies on: to the next capture, or from the one before.
-        let segment = original
+        let segment = records
             .get(k + 1)
             .filter(|n| finite(n))
-            .and_then(|n| Some((&original[k], n, time_between(&original[k], n)?)))
+            .and_then(|n| Some((r, n, time_between(r, n)?)))
             .or_else(|| {
-                let b = original.get(k.checked_sub(1)?).filter(|b| finite(b))?;
-                Some((b, &original[k], time_between(b, &original[k])?))
+                let b = records.get(k.checked_sub(1)?).filter(|b| finite(b))?;
+                Some((b, r, time_between(b, r)?))
             });
         let Some((a, b, dt)) = segment.filter(|_| finite(r)) else {
             moved.left.push(r.seq);
             continue;
         };
-        let f = delay_s / dt;
-        let lerp = |x: f64, y: f64| (y - x) * f;
-        let (pa, pb) = (&a.position, &b.position);
-        let p = &mut r.position;
-        p.lat_deg += lerp(pa.lat_deg, pb.lat_deg);
-        p.lon_deg += lerp(pa.lon_deg, pb.lon_deg);
-        p.alt_m += lerp(pa.alt_m, pb.alt_m);
-        p.rel_alt_m += lerp(pa.rel_alt_m, pb.rel_alt_m);
-        let d = [
-            lerp(pa.east_m, pb.east_m),
-            lerp(pa.north_m, pb.north_m),
-            lerp(pa.up_m, pb.up_m),
-        ];
-        p.east_m += d[0];
-        p.north_m += d[1];
-        p.up_m += d[2];
+        let (ca, cb) = (coords(a), coords(b));
+        let d: [f64; 7] = std::array::from_fn(|i| (cb[i] - ca[i]) * (delay_s / dt));
         moved
             .moved_m
-            .push((d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt());
+            .push((d[4] * d[4] + d[5] * d[5] + d[6] * d[6]).sqrt());
+        moves.push((k, d));
+    }
+    for (k, d) in moves {
+        let p = &mut records[k].position;
+        let coords = [
+            &mut p.lat_deg,
+            &mut p.lon_deg,
+            &mut p.alt_m,
+            &mut p.rel_alt_m,
+            &mut p.east_m,
+            &mut p.north_m,
+            &mut p.up_m,
+        ];
+        for (c, d) in coords.into_iter().zip(d) {
+            *c += d;
+        }
     }
     moved
 }

@@ -5,7 +5,6 @@
 //! captures it took and named in `geo.txt`.
 
 use super::{bad, emit};
-use alfd::capture::export::export_flight_with_camera_delay;
 use alfd::capture::export::{
     Skip, COLMAP_CAMERAS, COLMAP_IMAGES, COLMAP_POINTS, GEO_TXT, TRANSFORMS_JSON,
 };
@@ -13,7 +12,9 @@ use alfd::capture::external::{
     read_camera_dirs, CameraDir, Moved, PairedBy, Pairing, DELAY_GAP_MAX_S,
 };
 use alfd::capture::store::MANIFEST;
-use alfd::capture::{export_flight, ExportError, FlightExport, StoreError};
+use alfd::capture::{
+    export_flight, export_flight_with_camera, ExportError, FlightExport, StoreError,
+};
 use anyhow::Result;
 use std::collections::BTreeMap;
 use std::fmt::Write;
@@ -69,6 +70,7 @@ pub fn run(a: Args) -> Result<ExitCode> {
         emit(&report(&dir, &done, true))?;
         return Ok(ExitCode::SUCCESS);
     }
+    let mut seen = std::collections::HashSet::new();
     for images in &a.images {
         if !images.is_dir() {
             return Err(bad(format!(
@@ -76,9 +78,6 @@ pub fn run(a: Args) -> Result<ExitCode> {
                 images.display()
             )));
         }
-    }
-    let mut seen = std::collections::HashSet::new();
-    for images in &a.images {
         let real = images
             .canonicalize()
             .map_err(|e| bad(format!("--images {}: {e}", images.display())))?;
@@ -126,11 +125,11 @@ pub fn run(a: Args) -> Result<ExitCode> {
         }
         return Err(bad(msg));
     }
-    let (done, pairing, moved) = export_flight_with_camera_delay(&dir, &camera, a.camera_delay_s)
+    let (done, pairing, moved) = export_flight_with_camera(&dir, &camera, a.camera_delay_s)
         .map_err(|e| match e {
-        ExportError::Store(e) => in_use(e),
-        e @ ExportError::Pair { .. } => bad(format!("--images {e}")),
-    })?;
+            ExportError::Store(e) => in_use(e),
+            e @ ExportError::Pair { .. } => bad(format!("--images {e}")),
+        })?;
     let mut s = report(&dir, &done, false);
     s += &camera_report(&camera, &pairing);
     if let (Some(d), Some(m)) = (a.camera_delay_s, moved) {

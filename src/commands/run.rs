@@ -115,21 +115,15 @@ fn print_report(r: &RunReport) {
         tracing::warn!("{e}");
     }
     if r.trigger_distances_sent > 0 || r.autopilot_triggers > 0 {
-        let arrival = match r.feedbacks_timed_on_arrival {
-            0 => String::new(),
-            n => {
-                format!(", {n} placed at its arrival: no UTC from SYSTEM_TIME to map its GPS time")
-            }
-        };
         tracing::info!(
             autopilot_triggers = r.autopilot_triggers,
             autopilot_feedbacks = r.autopilot_feedbacks,
             feedbacks_timed_on_arrival = r.feedbacks_timed_on_arrival,
-            "the autopilot's distance trigger: {} DO_SET_CAM_TRIGG_DIST sent, {} acknowledged; {} of its pictures logged ({} known by CAMERA_FEEDBACK alone{arrival})",
+            "the autopilot's distance trigger: {} DO_SET_CAM_TRIGG_DIST sent, {} acknowledged; {} of its pictures logged{}",
             r.trigger_distances_sent,
             r.trigger_distances_acked,
             r.autopilot_triggers,
-            r.autopilot_feedbacks,
+            r.feedbacks_text(),
         );
     }
 }

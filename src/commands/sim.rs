@@ -293,11 +293,7 @@ pub fn run(a: Args) -> Result<ExitCode> {
             r.trigger_distances_with_picture,
             r.trigger_distances_acked,
             r.autopilot_triggers,
-            match (r.autopilot_feedbacks, r.feedbacks_timed_on_arrival) {
-                (0, _) => String::new(),
-                (n, 0) => format!(" ({n} by CAMERA_FEEDBACK, placed by its GPS time)"),
-                (n, k) => format!(" ({n} by CAMERA_FEEDBACK, {k} placed at its arrival: no UTC from SYSTEM_TIME to map its GPS time)"),
-            }
+            r.feedbacks_text()
         ));
     }
     text.push_str(&format!(

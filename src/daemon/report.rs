@@ -83,6 +83,20 @@ pub struct RunReport {
     pub latency: Option<super::latency::LatencySummary>,
 }
 
+impl RunReport {
+    /// How the autopilot's pictures were known, as the summary and the log say it: empty
+    /// when none came by CAMERA_FEEDBACK.
+    pub fn feedbacks_text(&self) -> String {
+        match (self.autopilot_feedbacks, self.feedbacks_timed_on_arrival) {
+            (0, _) => String::new(),
+            (n, 0) => format!(" ({n} by CAMERA_FEEDBACK, placed by its GPS time)"),
+            (n, k) => format!(
+                " ({n} by CAMERA_FEEDBACK, {k} placed at its arrival: no UTC from SYSTEM_TIME to map its GPS time)"
+            ),
+        }
+    }
+}
+
 #[derive(Debug, thiserror::Error)]
 pub enum RunError {
     /// The store's error names its path (the directory, or the file in it).

@@ -980,9 +980,10 @@ fn camera_card(
     )
     .and_then(|dir| read_camera_dir(&dir).map_err(|e| e.to_string()))
     .and_then(|card| {
-        crate::capture::export_flight_with_camera(flight_dir, &card).map_err(|e| e.to_string())
+        crate::capture::export_flight_with_camera(flight_dir, &card, None)
+            .map_err(|e| e.to_string())
     })
-    .map(|(done, pairing)| (pairing, done.exports.geo_lines));
+    .map(|(done, pairing, _)| (pairing, done.exports.geo_lines));
     CameraCard {
         dir,
         pictures: pictures.len(),
