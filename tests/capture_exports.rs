@@ -66,6 +66,7 @@ fn record(seq: u64, lat: f64, lon: f64, alt: f64, yaw: f64, cam_pitch: f64) -> C
         }),
         requested_by: None,
         image_missing: None,
+        picture_after_ms: None,
     }
 }
 
@@ -737,6 +738,12 @@ fn a_flight_over_two_folders_of_the_card_is_paired_as_one() {
     // The card's DCIM: its folders in the order of their names.
     fs::remove_file(flight_dir.join(GEO_TXT)).unwrap();
     let (status, stdout, stderr) = alfd_export_images(&flight_dir, &dcim);
+    assert!(status.success(), "{stderr}");
+    assert_eq!(geo_lines(&stdout), want);
+    // The card's mount point, holding DCIM beside the camera's other folders.
+    fs::remove_file(flight_dir.join(GEO_TXT)).unwrap();
+    fs::create_dir_all(tmp.path().join("PRIVATE/M4ROOT")).unwrap();
+    let (status, stdout, stderr) = alfd_export_images(&flight_dir, tmp.path());
     assert!(status.success(), "{stderr}");
     assert_eq!(geo_lines(&stdout), want);
     // A camera that numbered the new folder from 1 again: DJI_0001.JPG in both would

@@ -64,6 +64,7 @@ fn record(seq: u64, with_image: bool) -> CaptureRecord {
         }),
         requested_by: None,
         image_missing: None,
+        picture_after_ms: None,
     }
 }
 

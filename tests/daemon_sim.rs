@@ -260,6 +260,23 @@ fn camera_command_mode_commands_the_camera_once_per_logged_capture() {
     assert_eq!(out.sim_events_lost, 0);
     assert_eq!(commanded, m.records.len());
     assert_eq!(out.report.camera_command_failures, 0);
+    // Its camera takes each picture 50 ms after the command; the CAMERA_TRIGGER says when,
+    // and every record is placed at its own picture's instant (through TIMESYNC), not at
+    // the decision 50 ms (0.5 m) before it.
+    assert_eq!(out.sim_triggers.len(), m.records.len());
+    let delay_ms = alfd::daemon::sim::SIM_CAMERA_DELAY.as_secs_f64() * 1e3;
+    for (r, (picture_ns, _)) in m.records.iter().zip(&out.sim_triggers) {
+        let off_ms = (r.mono_ns as f64 - *picture_ns as f64) * 1e-6;
+        assert!(
+            off_ms.abs() < 1.0,
+            "capture {}: {off_ms} ms from its picture",
+            r.seq
+        );
+        let after = r.picture_after_ms.expect("placed at its picture");
+        assert!((after - delay_ms).abs() < 2.0, "{after} ms");
+    }
+    assert_eq!(out.report.pictures_reported, m.records.len() as u64);
+    assert_eq!(out.report.pictures_unreported, 0);
     camera_card_pairs_with_the_manifest(&out, &m.records);
 }
 

@@ -187,6 +187,10 @@ pub struct SimConfig {
     pub autopilot: Autopilot,
     pub vehicle: Vehicle,
     pub camera: CameraBackend,
+    /// From a capture command's arrival (DO_DIGICAM_CONTROL, IMAGE_START_CAPTURE) to its
+    /// picture, which is reported at its own instant (as a hot-shoe feedback pin times it):
+    /// the autopilot's scheduling and the camera's shutter lag. Zero: at the command.
+    pub camera_delay: Duration,
 }
 
 /// A ground station answering TIMESYNC requests with its own clock: each request heard on the
@@ -254,6 +258,8 @@ struct RawVehicle {
 struct RawCamera {
     /// "trigger", "mavlink_cam_v2" or "servo" (also "relay").
     backend: Option<String>,
+    /// Command to picture, ms (0 to 2000).
+    delay_ms: f64,
 }
 
 #[derive(Deserialize)]
@@ -587,6 +593,14 @@ impl SimConfig {
                 ))
             }
         };
+        let delay_ms = raw.camera.delay_ms;
+        if !(delay_ms.is_finite() && (0.0..=2000.0).contains(&delay_ms)) {
+            return Err(bad(
+                "camera.delay_ms",
+                format!("{delay_ms}: from a capture command to its picture is 0 to 2000 ms"),
+            ));
+        }
+        let camera_delay = Duration::from_secs_f64(delay_ms * 1e-3);
         let transport = match l.transport.as_str() {
             "pty" => Transport::Pty { link: l.path },
             "serial" => Transport::Serial {
@@ -731,6 +745,7 @@ impl SimConfig {
             autopilot,
             vehicle,
             camera,
+            camera_delay,
             transport,
             mavlink_version: l.mavlink_version,
             system_id: l.system_id,

@@ -276,6 +276,8 @@ struct Engine {
     camera_flags: Option<CameraCapFlags>,
     caminfo_next_ns: u64,
     pending: Vec<(u64, Fault)>,
+    /// Pictures capture commands asked for, due at these instants (`camera_delay` after them).
+    command_pictures: std::collections::VecDeque<u64>,
     truth: Option<std::io::BufWriter<std::fs::File>>,
 }
 
@@ -345,6 +347,7 @@ impl Engine {
             camera_flags: None,
             caminfo_next_ns: 0,
             pending,
+            command_pictures: Default::default(),
             truth,
             cfg,
             shared,
@@ -506,6 +509,9 @@ impl Engine {
         for (at, _) in &self.pending {
             t = t.min(*at);
         }
+        if let Some(at) = self.command_pictures.front() {
+            t = t.min(*at);
+        }
         for end in [
             self.silent_until,
             self.quiet_until,
@@ -575,6 +581,15 @@ impl Engine {
             }
         }
         self.milestones(io, now);
+        while let Some(at) = self
+            .command_pictures
+            .front()
+            .copied()
+            .filter(|at| *at <= now)
+        {
+            self.command_pictures.pop_front();
+            self.take_command_picture(io, at);
+        }
         if let Some(at) = self.trigger_at {
             if at as u64 <= now {
                 let at = at as u64;
@@ -861,11 +876,21 @@ impl Engine {
             });
     }
 
-    /// A picture a capture command asked for (ArduPilot counts its distance from it).
+    /// A capture command arrived: its picture now, or `camera_delay` later.
     fn command_picture(&mut self, io: &Links, now: u64) {
-        if self.capture(io, now, "capture") && self.trigger.is_on() {
-            self.trigger.other_picture(self.path_at(now));
-            self.schedule_trigger(now);
+        if self.cfg.camera_delay.is_zero() {
+            self.take_command_picture(io, now);
+        } else {
+            let at = now + self.cfg.camera_delay.as_nanos() as u64;
+            self.command_pictures.push_back(at);
+        }
+    }
+
+    /// A picture a capture command asked for (ArduPilot counts its distance from it).
+    fn take_command_picture(&mut self, io: &Links, at: u64) {
+        if self.capture(io, at, "capture") && self.trigger.is_on() {
+            self.trigger.other_picture(self.path_at(at));
+            self.schedule_trigger(at);
         }
     }
 

@@ -75,10 +75,15 @@ fn the_profile_sets_its_behaviours_and_explicit_keys_win() {
     }
     let generic = SimConfig::default();
     assert_eq!(generic.camera, CameraBackend::Trigger);
+    assert_eq!(generic.camera_delay, Duration::ZERO);
+    let late = SimConfig::from_toml("[camera]\ndelay_ms = 80\n").unwrap();
+    assert_eq!(late.camera_delay, Duration::from_millis(80));
     assert_eq!(generic.vehicle.origin_delay, Duration::ZERO);
     for (text, field) in [
         ("autopilot = \"px5\"", "autopilot"),
         ("[camera]\nbackend = \"film\"", "camera.backend"),
+        ("[camera]\ndelay_ms = -1", "camera.delay_ms"),
+        ("[camera]\ndelay_ms = 2500", "camera.delay_ms"),
         ("[vehicle]\nclimb_mps = 0", "vehicle.climb_mps"),
         (
             "[vehicle]\norigin_delay_s = 9\nground_s = 10",

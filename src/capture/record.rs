@@ -255,6 +255,11 @@ pub struct CaptureRecord {
     /// CAMERA_IMAGE_CAPTURED for it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub image_missing: Option<String>,
+    /// `camera_command`: how long after the capture was decided the autopilot reported taking
+    /// its picture (CAMERA_TRIGGER, CAMERA_FEEDBACK), ms; the line's times and pose are then
+    /// the picture's. Absent: another mode, or no report came (the decision's instant).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub picture_after_ms: Option<f64>,
 }
 
 /// Image encodings of saved frames.
@@ -364,6 +369,7 @@ pub(crate) mod tests {
             }),
             requested_by: None,
             image_missing: None,
+            picture_after_ms: None,
         }
     }
 

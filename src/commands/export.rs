@@ -28,8 +28,9 @@ pub struct Args {
     /// An external camera's pictures (its card's folder of JPEGs): each is paired
     /// with the capture that triggered it (`camera_command`, `autopilot_distance`)
     /// and named on that capture's `geo.txt` line. Given again for a flight the
-    /// camera spread over several folders; a card's DCIM reads every folder in it
-    /// that holds pictures. The folders are only read.
+    /// camera spread over several folders; a card's DCIM (or the card's mount point
+    /// holding it) reads every folder in it that holds pictures. The folders are
+    /// only read.
     #[arg(long, value_name = "DIR")]
     images: Vec<PathBuf>,
     /// The external camera's delay from trigger to exposure, seconds (its shutter
@@ -93,15 +94,26 @@ pub fn run(a: Args) -> Result<ExitCode> {
     if let [one] = folders.as_slice() {
         // A card's root (DCIM) holds folders of pictures, not pictures: all of them,
         // in the order of their names (100MSDCF, 101MSDCF: the camera's own order).
+        // A card's mount point holds DCIM (beside MISC, PRIVATE): its folders, when none
+        // of the mount point's own holds pictures.
         if !has_jpeg(one) {
-            let mut inside: Vec<PathBuf> = std::fs::read_dir(one)
-                .into_iter()
-                .flatten()
-                .flatten()
-                .map(|e| e.path())
-                .filter(|p| p.is_dir() && has_jpeg(p))
-                .collect();
-            inside.sort();
+            let with_pictures = |dir: &Path| {
+                let mut inside: Vec<PathBuf> = std::fs::read_dir(dir)
+                    .into_iter()
+                    .flatten()
+                    .flatten()
+                    .map(|e| e.path())
+                    .filter(|p| p.is_dir() && has_jpeg(p))
+                    .collect();
+                inside.sort();
+                inside
+            };
+            let mut inside = with_pictures(one);
+            if inside.is_empty() {
+                if let Some(dcim) = dcim_in(one) {
+                    inside = with_pictures(&dcim);
+                }
+            }
             if !inside.is_empty() {
                 root = Some(one.clone());
                 folders = inside;
@@ -137,6 +149,20 @@ pub fn run(a: Args) -> Result<ExitCode> {
     }
     emit(&s)?;
     Ok(ExitCode::SUCCESS)
+}
+
+/// The card's `DCIM` folder (any case, as DCF names it) when `dir` is a card's
+/// mount point holding it.
+fn dcim_in(dir: &Path) -> Option<PathBuf> {
+    std::fs::read_dir(dir)
+        .ok()?
+        .flatten()
+        .map(|e| e.path())
+        .find(|p| {
+            p.file_name()
+                .is_some_and(|n| n.eq_ignore_ascii_case("DCIM"))
+                && p.is_dir()
+        })
 }
 
 /// Whether a folder holds a file named as a JPEG (its listing only: a card's

@@ -114,6 +114,15 @@ fn print_report(r: &RunReport) {
     for e in &r.capture_errors {
         tracing::warn!("{e}");
     }
+    if r.camera_commands > 0 {
+        tracing::info!(
+            pictures_reported = r.pictures_reported,
+            pictures_unreported = r.pictures_unreported,
+            reports_unmatched = r.reports_unmatched,
+            "the external camera: {}",
+            r.pictures_text(),
+        );
+    }
     if r.trigger_distances_sent > 0 || r.autopilot_triggers > 0 {
         tracing::info!(
             autopilot_triggers = r.autopilot_triggers,

@@ -285,6 +285,9 @@ pub fn run(a: Args) -> Result<ExitCode> {
     if let Some(l) = &r.latency {
         text.push_str(&format!("answered        {l}\n"));
     }
+    if r.camera_commands > 0 {
+        text.push_str(&format!("camera cmd      {}\n", r.pictures_text()));
+    }
     // The autopilot's own trigger: how often alfd had to move its distance.
     if r.trigger_distances_sent > 0 {
         text.push_str(&format!(

@@ -43,6 +43,16 @@ pub const NAME_BOUND: &str = "ALF_BND";
 const SECOND_NS: u64 = 1_000_000_000;
 /// At most one "too fast" STATUSTEXT in this long.
 const TOO_FAST_EVERY_NS: u64 = 10_000_000_000;
+/// `camera_command`: how long after its decision a capture waits for the autopilot to say it
+/// took the picture (CAMERA_TRIGGER, CAMERA_FEEDBACK) before it is logged where it was decided.
+pub const PICTURE_WAIT_NS: u64 = 1_000_000_000;
+/// After this many captures in a row the autopilot did not report, captures stop waiting (its
+/// camera reports nothing); its next report makes them wait again.
+pub const UNREPORTED_IN_ROW_MAX: u32 = 3;
+/// A report this long before a capture's decision can still be its picture (time sync's error).
+const PICTURE_EARLY_NS: u64 = 5_000_000;
+/// How many of the latest decision-to-picture delays give the usual one.
+const PICTURE_DELAYS_KEPT: usize = 8;
 
 /// What the daemon's clocks say now.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -155,6 +165,21 @@ struct Waiting {
     what: Awaits,
     mono_ns: u64,
     answer: Answer,
+    /// The [`Action::Locate`] whose answer this capture takes (a picture reported later is
+    /// located again, and the earlier answer is then stale).
+    locate_id: u64,
+    picture: Picture,
+}
+
+/// A `camera_command` capture and the autopilot's report of its picture.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Picture {
+    /// Not waited for.
+    NotAwaited,
+    /// Waiting for the autopilot's report until this instant.
+    Awaited { until_ns: u64 },
+    /// Reported taken at this instant, where the capture is located.
+    Reported { mono_ns: u64 },
 }
 
 enum Answer {
@@ -197,6 +222,12 @@ pub struct CoordinatorReport {
     /// (its GPS time stamp could not be mapped: no SYSTEM_TIME with UTC yet).
     pub autopilot_feedbacks: u64,
     pub feedbacks_timed_on_arrival: u64,
+    /// `camera_command`: captures placed at the instant the autopilot reported their picture,
+    /// captures that waited for a report in vain (logged where decided), and reports no
+    /// waiting capture took.
+    pub pictures_reported: u64,
+    pub pictures_unreported: u64,
+    pub reports_unmatched: u64,
     /// Captures written without their image, or not written (with the reason).
     pub captures_failed: u64,
     pub statustexts: Vec<String>,
@@ -242,6 +273,10 @@ pub struct Coordinator {
     writing: usize,
     last_second_ns: Option<u64>,
     too_fast_said_ns: Option<u64>,
+    /// `camera_command`: captures in a row whose picture the autopilot did not report, and
+    /// the latest delays from a decision to its picture.
+    unreported_in_row: u32,
+    picture_delays_ns: VecDeque<u64>,
     pub report: CoordinatorReport,
 }
 
@@ -280,6 +315,8 @@ impl Coordinator {
             writing: 0,
             last_second_ns: None,
             too_fast_said_ns: None,
+            unreported_in_row: 0,
+            picture_delays_ns: VecDeque::new(),
             report: CoordinatorReport::default(),
         }
     }
@@ -328,9 +365,18 @@ impl Coordinator {
         out
     }
 
-    /// When [`Coordinator::on_tick`] has something to do next (an interval capture).
+    /// When [`Coordinator::on_tick`] has something to do next (an interval capture, a
+    /// capture's wait for its picture's report ending).
     pub fn next_due_ns(&self) -> Option<u64> {
-        self.interval.map(|i| i.next_ns)
+        let waits = self.locating.values().filter_map(|w| match w.picture {
+            Picture::Awaited { until_ns } => Some(until_ns),
+            _ => None,
+        });
+        self.interval
+            .map(|i| i.next_ns)
+            .into_iter()
+            .chain(waits)
+            .min()
     }
 
     /// The vehicle's ground speed now (kept until the next one known).
@@ -487,17 +533,33 @@ impl Coordinator {
             CaptureMode::AutopilotDistance => return out,
         }
         let mono_ns = record.mono_ns;
-        if record.pose_age_ms > 0.0 && self.locating.len() < LOCATING_MAX {
-            self.wait_for_pose(&mut out, Awaits::Decided(Box::new(record)), mono_ns);
+        // An external camera's picture comes after the command: where the autopilot says it
+        // took it (its CAMERA_TRIGGER or CAMERA_FEEDBACK), the capture is placed.
+        let picture = if self.config.capture.mode == CaptureMode::CameraCommand
+            && self.unreported_in_row < UNREPORTED_IN_ROW_MAX
+        {
+            Picture::Awaited {
+                until_ns: mono_ns + PICTURE_WAIT_NS,
+            }
+        } else {
+            Picture::NotAwaited
+        };
+        let what = Awaits::Decided(Box::new(record));
+        if self.locating.len() < LOCATING_MAX
+            && matches!(&what, Awaits::Decided(r) if r.pose_age_ms > 0.0)
+        {
+            self.wait_for_pose(&mut out, what, mono_ns, picture);
         } else {
             // In line after any capture still waiting for its pose; written at once when
             // there is none. (With LOCATING_MAX waiting, one more decided capture goes past
             // the bound rather than being lost; the estimator decides at most one per frame.)
             self.next_id += 1;
             let waiting = Waiting {
-                what: Awaits::Decided(Box::new(record)),
+                what,
                 mono_ns,
                 answer: Answer::NotNeeded,
+                locate_id: self.next_id,
+                picture,
             };
             self.locating.insert(self.next_id, waiting);
             self.write_in_order(&mut out);
@@ -564,6 +626,22 @@ impl Coordinator {
             } if self.config.capture.mode == CaptureMode::AutopilotDistance => {
                 self.picture_reports.trigger_seen = true;
                 self.autopilot_picture(&mut out, None, t);
+            }
+            LinkEvent::CameraTrigger {
+                mono_ns: Some(t), ..
+            } if self.config.capture.mode == CaptureMode::CameraCommand => {
+                self.picture_reports.trigger_seen = true;
+                self.picture_reported(&mut out, t);
+            }
+            LinkEvent::CameraFeedback {
+                img_idx,
+                mono_ns,
+                received_mono_ns,
+                ..
+            } if self.config.capture.mode == CaptureMode::CameraCommand
+                && self.picture_reports.first(Report::Feedback, img_idx) =>
+            {
+                self.picture_reported(&mut out, mono_ns.unwrap_or(received_mono_ns));
             }
             LinkEvent::CameraTrigger { mono_ns: None, .. }
                 if self.config.capture.mode == CaptureMode::AutopilotDistance =>
@@ -692,15 +770,96 @@ impl Coordinator {
             self.status(out, MavSeverity::MAV_SEVERITY_ERROR, text);
             return;
         }
-        self.wait_for_pose(out, Awaits::Asked(asked), mono_ns);
+        self.wait_for_pose(out, Awaits::Asked(asked), mono_ns, Picture::NotAwaited);
     }
 
-    fn wait_for_pose(&mut self, out: &mut Vec<Action>, what: Awaits, mono_ns: u64) {
+    /// The autopilot says it took a picture at `mono_ns` (`camera_command`): a capture
+    /// decided before it that waits for its picture is located there. The first report
+    /// goes to the oldest such capture (the picture may come after later decisions: an
+    /// autopilot's and a camera's delay can exceed the time between captures); from then
+    /// on each goes to the capture whose decision lies the usual delay before it (the
+    /// median of the last few), so a command the camera missed leaves that one capture
+    /// unreported instead of placing every later one at its successor's picture.
+    fn picture_reported(&mut self, out: &mut Vec<Action>, mono_ns: u64) {
+        self.unreported_in_row = 0;
+        let usual_ns = median_u64(&self.picture_delays_ns);
+        let waiting = self
+            .locating
+            .iter()
+            .filter(|(_, w)| {
+                matches!(w.picture, Picture::Awaited { .. })
+                    && w.mono_ns <= mono_ns + PICTURE_EARLY_NS
+            })
+            .min_by_key(|(_, w)| match usual_ns {
+                Some(d) => (w.mono_ns + d).abs_diff(mono_ns),
+                None => w.mono_ns,
+            })
+            .map(|(k, w)| (*k, w.mono_ns));
+        let Some((key, decided_ns)) = waiting else {
+            self.report.reports_unmatched += 1;
+            return;
+        };
+        if self.picture_delays_ns.len() == PICTURE_DELAYS_KEPT {
+            self.picture_delays_ns.pop_front();
+        }
+        self.picture_delays_ns
+            .push_back(mono_ns.saturating_sub(decided_ns));
+        self.next_id += 1;
+        let id = self.next_id;
+        if let Some(w) = self.locating.get_mut(&key) {
+            w.picture = Picture::Reported { mono_ns };
+            w.answer = Answer::Pending;
+            w.locate_id = id;
+        }
+        out.push(Action::Locate { id, mono_ns });
+    }
+
+    /// The captures whose wait for their picture's report is over (`until`: those due by
+    /// then; `None`: all, at the daemon's stop) are logged where they were decided.
+    fn stop_awaiting(&mut self, out: &mut Vec<Action>, until: Option<u64>) {
+        let mut ended = 0;
+        for w in self.locating.values_mut() {
+            if let Picture::Awaited { until_ns } = w.picture {
+                if until.is_none_or(|t| until_ns <= t) {
+                    w.picture = Picture::NotAwaited;
+                    ended += 1;
+                }
+            }
+        }
+        if ended == 0 {
+            return;
+        }
+        self.report.pictures_unreported += ended;
+        let was = self.unreported_in_row;
+        self.unreported_in_row = was.saturating_add(ended as u32);
+        if was < UNREPORTED_IN_ROW_MAX && self.unreported_in_row >= UNREPORTED_IN_ROW_MAX {
+            let text = "alfd: no picture reports: logged where decided";
+            self.status(out, MavSeverity::MAV_SEVERITY_WARNING, text);
+        }
+        self.write_in_order(out);
+    }
+
+    /// At the daemon's stop: no capture waits for its picture's report any longer.
+    pub fn stop_awaiting_pictures(&mut self) -> Vec<Action> {
+        let mut out = Vec::new();
+        self.stop_awaiting(&mut out, None);
+        out
+    }
+
+    fn wait_for_pose(
+        &mut self,
+        out: &mut Vec<Action>,
+        what: Awaits,
+        mono_ns: u64,
+        picture: Picture,
+    ) {
         self.next_id += 1;
         let waiting = Waiting {
             what,
             mono_ns,
             answer: Answer::Pending,
+            locate_id: self.next_id,
+            picture,
         };
         self.locating.insert(self.next_id, waiting);
         self.sync_activity();
@@ -714,7 +873,8 @@ impl Coordinator {
     /// (no pose) the ground station hears of the failure.
     pub fn on_located(&mut self, id: u64, located: Result<Located, String>) -> Vec<Action> {
         let mut out = Vec::new();
-        let Some(w) = self.locating.get_mut(&id) else {
+        // Only the capture's latest Locate counts (a reported picture asked again).
+        let Some(w) = self.locating.values_mut().find(|w| w.locate_id == id) else {
             return out;
         };
         w.answer = Answer::Located(Box::new(located));
@@ -725,7 +885,9 @@ impl Coordinator {
     /// Numbers and writes the captures at the head of the line that have their answer.
     fn write_in_order(&mut self, out: &mut Vec<Action>) {
         while let Some(e) = self.locating.first_entry() {
-            if matches!(e.get().answer, Answer::Pending) {
+            if matches!(e.get().answer, Answer::Pending)
+                || matches!(e.get().picture, Picture::Awaited { .. })
+            {
                 break;
             }
             let w = e.remove();
@@ -739,6 +901,11 @@ impl Coordinator {
                     self.asked_located(out, asked, w.mono_ns, located)
                 }
                 (Awaits::Decided(mut record), answer) => {
+                    let placed = matches!(&answer, Answer::Located(l) if l.is_ok());
+                    if matches!(w.picture, Picture::Reported { .. }) && !placed {
+                        // Reported, but no pose there: where it was decided, unplaced.
+                        self.report.pictures_unreported += 1;
+                    }
                     if let Answer::Located(located) = &answer {
                         if let Ok(l) = located.as_ref() {
                             relocate(
@@ -748,6 +915,18 @@ impl Coordinator {
                                 &l.local,
                                 self.config.depth.mount_pitch_rad,
                             );
+                            if let Picture::Reported { mono_ns } = w.picture {
+                                // The picture's instant and place, not the decision's.
+                                self.report.pictures_reported += 1;
+                                record.picture_after_ms =
+                                    Some(mono_ns as f64 * 1e-6 - record.mono_ns as f64 * 1e-6);
+                                record.mono_ns = mono_ns;
+                                record.time_unix_us = l.unix_us;
+                                let ne = [l.pose.pos_ned_m.x, l.pose.pos_ned_m.y];
+                                record.distance_since_last_m = self
+                                    .last_capture_ne
+                                    .map(|p| (ne[0] - p[0]).hypot(ne[1] - p[1]));
+                            }
                         }
                     }
                     // No later pose: the capture keeps the one it was decided with (its
@@ -884,6 +1063,7 @@ impl Coordinator {
     ) -> Vec<Action> {
         let mut out = Vec::new();
         self.set_ground_speed(ground_speed_mps);
+        self.stop_awaiting(&mut out, Some(now.mono_ns));
         while let Some(mut i) = self.interval.filter(|i| i.next_ns <= now.mono_ns) {
             self.report.command_captures += 1;
             self.locate(&mut out, Asked::Command { from: i.from }, now.mono_ns);
@@ -989,6 +1169,13 @@ impl Coordinator {
                 .map(send),
         );
     }
+}
+
+/// The middle value (the upper of the two middle ones), `None` for none.
+fn median_u64(values: &VecDeque<u64>) -> Option<u64> {
+    let mut v: Vec<u64> = values.iter().copied().collect();
+    v.sort_unstable();
+    v.get(v.len() / 2).copied()
 }
 
 fn send(m: MavMessage) -> Action {
@@ -1405,6 +1592,108 @@ mod tests {
             locates(&co.on_link_event(feedback(1, None, 8 * S), now(8 * S))).len(),
             1
         );
+    }
+
+    /// `camera_command`: each capture waits for the autopilot's word that it took the picture
+    /// and is logged at that instant and place. The first report goes to the oldest capture
+    /// waiting (the picture may come after the next decision); later ones by the usual delay,
+    /// so a command the camera missed leaves that capture where it was decided (after
+    /// `PICTURE_WAIT_NS`) and does not place the next one at its successor's picture. After
+    /// three unreported in a row captures stop waiting, until a report comes again; the
+    /// daemon's stop writes what still waits.
+    #[test]
+    fn a_camera_commands_capture_is_placed_where_the_autopilot_reports_its_picture() {
+        const MS: u64 = 1_000_000;
+        let mut co = coordinator("camera_command", 0);
+        let storage = StorageState::from_free_bytes(1 << 30);
+        let decide = |co: &mut Coordinator, t: u64| {
+            let mut r = crate::capture::record::tests::sample(1);
+            (r.mono_ns, r.pose_age_ms, r.image) = (t, 0.0, None);
+            r.capture_mode = CaptureMode::CameraCommand;
+            co.on_decided(r)
+        };
+        let trigger = |t: u64| LinkEvent::CameraTrigger {
+            seq: 0,
+            time_boot_us: t / 1000,
+            mono_ns: Some(t),
+        };
+        // Two decisions 30 ms apart, each picture 50 ms after its decision: the command goes
+        // out, nothing is written before the picture is reported.
+        let a = decide(&mut co, S);
+        assert_eq!(a.len(), 1, "the command alone: {a:?}");
+        assert!(decide(&mut co, S + 30 * MS)
+            .iter()
+            .all(|a| !matches!(a, Action::Write(_))));
+        assert_eq!(co.next_due_ns(), Some(S + PICTURE_WAIT_NS));
+        let a = co.on_link_event(trigger(S + 50 * MS), now(S + 60 * MS));
+        assert_eq!(locates(&a), [(3, S + 50 * MS)], "the oldest waiting");
+        let w = writes(&co.on_located(3, located(10.0)));
+        assert_eq!(w.len(), 1);
+        assert_eq!((w[0].seq, w[0].mono_ns), (1, S + 50 * MS));
+        assert_eq!(w[0].picture_after_ms, Some(50.0));
+        assert_eq!(w[0].time_boot_us, 1_000, "the picture's clock");
+        let a = co.on_link_event(trigger(S + 80 * MS), now(S + 90 * MS));
+        assert_eq!(locates(&a), [(4, S + 80 * MS)]);
+        let w = writes(&co.on_located(4, located(10.5)));
+        assert_eq!((w[0].seq, w[0].picture_after_ms), (2, Some(50.0)));
+        assert_eq!(
+            w[0].distance_since_last_m,
+            Some(0.5),
+            "between the pictures"
+        );
+        // The camera misses the command of 2 s; the report at 2.08 s is 2.03 s's picture.
+        decide(&mut co, 2 * S);
+        decide(&mut co, 2 * S + 30 * MS);
+        let a = co.on_link_event(trigger(2 * S + 80 * MS), now(2 * S + 90 * MS));
+        let [(id, at)] = locates(&a)[..] else {
+            panic!("{a:?}")
+        };
+        assert_eq!(at, 2 * S + 80 * MS);
+        assert!(
+            writes(&co.on_located(id, located(20.0))).is_empty(),
+            "in order"
+        );
+        // Its wait ends at 3 s: it is written where it was decided, then the next.
+        let w = writes(&co.on_tick(now(3 * S), storage, 0, None));
+        assert_eq!(w.len(), 2);
+        assert_eq!(
+            (w[0].seq, w[0].mono_ns, w[0].picture_after_ms),
+            (3, 2 * S, None)
+        );
+        assert_eq!((w[1].seq, w[1].mono_ns), (4, 2 * S + 80 * MS));
+        assert_eq!(
+            (co.report.pictures_reported, co.report.pictures_unreported),
+            (3, 1)
+        );
+        // An autopilot that reports nothing: two more captures wait in vain (three in a row
+        // since the last report, with the missed one), then none waits.
+        let mut said = Vec::new();
+        for k in 0..2 {
+            let t = (4 + 2 * k) * S;
+            assert!(writes(&decide(&mut co, t)).is_empty());
+            let a = co.on_tick(now(t + PICTURE_WAIT_NS), storage, 0, None);
+            assert_eq!(writes(&a).len(), 1);
+            said.extend(texts(&a));
+        }
+        assert_eq!(said, ["alfd: no picture reports: logged where decided"]);
+        assert_eq!(writes(&decide(&mut co, 10 * S)).len(), 1, "written at once");
+        assert_eq!(co.next_due_ns(), None);
+        // A report again (of no capture waiting): the next capture waits.
+        assert!(locates(&co.on_link_event(trigger(11 * S), now(11 * S))).is_empty());
+        assert_eq!(co.report.reports_unmatched, 1);
+        assert!(writes(&decide(&mut co, 12 * S)).is_empty());
+        // The stop: no report will be read, the capture is written as decided.
+        let w = writes(&co.stop_awaiting_pictures());
+        assert_eq!(
+            (w.len(), w[0].mono_ns, w[0].picture_after_ms),
+            (1, 12 * S, None)
+        );
+        assert_eq!(co.locating(), 0);
+        // Not in frame mode: a decided capture is written at once.
+        let mut frame = coordinator("frame", 0);
+        let mut r = crate::capture::record::tests::sample(1);
+        r.pose_age_ms = 0.0;
+        assert_eq!(writes(&frame.on_decided(r)).len(), 1);
     }
 
     #[test]

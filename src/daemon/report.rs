@@ -60,6 +60,11 @@ pub struct RunReport {
     /// Of those, known by CAMERA_FEEDBACK alone, and of these placed at its arrival.
     pub autopilot_feedbacks: u64,
     pub feedbacks_timed_on_arrival: u64,
+    /// `camera_command`: captures placed where the autopilot reported their picture, those
+    /// logged where decided (no report within `PICTURE_WAIT_NS`), and reports no capture took.
+    pub pictures_reported: u64,
+    pub pictures_unreported: u64,
+    pub reports_unmatched: u64,
     pub tlog_frames: u64,
     pub exports: Option<ExportSummary>,
     pub link: LinkHealth,
@@ -94,6 +99,40 @@ impl RunReport {
                 " ({n} by CAMERA_FEEDBACK, {k} placed at its arrival: no UTC from SYSTEM_TIME to map its GPS time)"
             ),
         }
+    }
+}
+
+impl RunReport {
+    /// How the camera commands' pictures were placed, as the summary and the log say it.
+    pub fn pictures_text(&self) -> String {
+        let mut after: Vec<f64> = self
+            .records
+            .iter()
+            .filter_map(|r| r.picture_after_ms)
+            .collect();
+        after.sort_by(f64::total_cmp);
+        let median = match after.as_slice() {
+            [] => String::new(),
+            a => format!(
+                " ({:.0} ms after the decision, median; {:.0} ms at most)",
+                a[a.len() / 2],
+                a[a.len() - 1]
+            ),
+        };
+        let mut s = format!(
+            "{} commands sent, {} captures placed where the autopilot reported their picture{median}, {} where decided (no report within {} s)",
+            self.camera_commands,
+            self.pictures_reported,
+            self.pictures_unreported,
+            super::coordinator::PICTURE_WAIT_NS as f64 * 1e-9,
+        );
+        if self.reports_unmatched > 0 {
+            s += &format!(
+                ", {} reports of no capture's picture",
+                self.reports_unmatched
+            );
+        }
+        s
     }
 }
 
@@ -144,6 +183,9 @@ pub(crate) fn report(
         autopilot_triggers: c.autopilot_triggers,
         autopilot_feedbacks: c.autopilot_feedbacks,
         feedbacks_timed_on_arrival: c.feedbacks_timed_on_arrival,
+        pictures_reported: c.pictures_reported,
+        pictures_unreported: c.pictures_unreported,
+        reports_unmatched: c.reports_unmatched,
         link: link.health().borrow().clone(),
         statustexts: c.statustexts,
         statustexts_dropped: c.statustexts_dropped,

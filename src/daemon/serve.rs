@@ -95,8 +95,11 @@ impl Loop {
     }
 
     /// Hands the backlog and the captures still waiting for their pose (each within
-    /// `LOCATE_WAIT`) to the writer, taking the writer's answers meanwhile (it waits on them).
+    /// `LOCATE_WAIT`) or their picture's report (no longer) to the writer, taking the writer's answers meanwhile (it waits on them).
     pub async fn hand_over(&mut self) {
+        // No report of a picture is read from here on: those still awaited are not coming.
+        let a = self.co.stop_awaiting_pictures();
+        self.out.perform(&mut self.co, a).await;
         while !self.out.backlog.is_empty() || self.co.locating() > 0 {
             let co = &mut self.co;
             let actions = tokio::select! {

@@ -253,6 +253,11 @@ pub fn sweep_text(p: &crate::core::EstimatorParams, width: usize, height: usize)
     format!("{pixels}, {lines}{JUDGED}")
 }
 
+/// The bench's external camera (`camera_command`): each picture this long after its command
+/// reaches the autopilot (the autopilot's scheduling and the camera's trigger lag; a stated
+/// figure, not a measured one), and reported at its own instant.
+pub const SIM_CAMERA_DELAY: std::time::Duration = std::time::Duration::from_millis(50);
+
 /// The end of [`sweep_text`]: what the sim's truth sweeps.
 const JUDGED: &str = "; judged against every pixel of every frame";
 
@@ -586,6 +591,7 @@ pub async fn run_sim_with(
             firmware_sim::Autopilot::ArduPilot => firmware_sim::CameraBackend::Servo,
             _ => firmware_sim::CameraBackend::Trigger,
         },
+        camera_delay: SIM_CAMERA_DELAY,
         ..SimConfig::default()
     };
     sc.survey.pattern = firmware_sim::Pattern::Line;
@@ -1119,21 +1125,31 @@ fn capture_positions(
         .records
         .iter()
         .map(|r| {
-            let tr = truth_at(r.mono_ns);
-            // The truth sample at or before the capture, plus the way since it.
-            let k = poses.partition_point(|p| p.mono_ns <= r.mono_ns);
-            let along = match k.checked_sub(1).and_then(|i| poses.get(i)) {
-                Some(p) => {
-                    p.along_m + (tr.pos_ned_m[0] - p.north_m).hypot(tr.pos_ned_m[1] - p.east_m)
-                }
-                None => poses.first().map_or(0.0, |p| {
-                    p.along_m - (tr.pos_ned_m[0] - p.north_m).hypot(tr.pos_ned_m[1] - p.east_m)
-                }),
+            // The truth sample at or before an instant, plus the way since it.
+            let along_at = |mono_ns: u64| {
+                let tr = truth_at(mono_ns);
+                let k = poses.partition_point(|p| p.mono_ns <= mono_ns);
+                let along = match k.checked_sub(1).and_then(|i| poses.get(i)) {
+                    Some(p) => {
+                        p.along_m + (tr.pos_ned_m[0] - p.north_m).hypot(tr.pos_ned_m[1] - p.east_m)
+                    }
+                    None => poses.first().map_or(0.0, |p| {
+                        p.along_m - (tr.pos_ned_m[0] - p.north_m).hypot(tr.pos_ned_m[1] - p.east_m)
+                    }),
+                };
+                (along, tr)
+            };
+            let (along, tr) = along_at(r.mono_ns);
+            // A camera command's picture came after the decision (`picture_after_ms`).
+            let decided_along_m = match r.picture_after_ms {
+                Some(ms) if ms > 0.0 => along_at(r.mono_ns.saturating_sub((ms * 1e6) as u64)).0,
+                _ => along,
             };
             CaptureAt {
                 seq: r.seq,
                 mono_ns: r.mono_ns,
                 along_m: along,
+                decided_along_m,
                 north_m: tr.pos_ned_m[0],
                 east_m: tr.pos_ned_m[1],
                 undersampled: r.undersampled,

@@ -303,6 +303,7 @@ pub fn capture_record(r: &RecordInputs) -> CaptureRecord {
         },
         requested_by: None,
         image_missing: None,
+        picture_after_ms: None,
     }
 }
 

@@ -25,10 +25,12 @@
 //!   sim` passes a frame's way, in `autopilot_distance` at least one check's;
 //!   pass 0 for the first rule alone). It is **at first sight** when the interval
 //!   is feasible against every truth sample more than `step_limit_m` before
-//!   `b`: only the frame that closed it (the one the trigger captured at)
-//!   showed the tighter spacing, so no trigger that acts on what it has seen
-//!   could have closed it earlier (a gap or a wall entering the view; the
-//!   ideal count, which knows the whole track, can). Avoidable = violations −
+//!   where the trigger decided `b` (`b` itself, or before it when an external
+//!   camera's picture came after the command): only the frame that closed it
+//!   (the one the trigger captured at), or the way flown while the camera was
+//!   taking the picture, showed the tighter spacing, so no trigger that acts on
+//!   what it has seen could have closed it earlier (a gap or a wall entering
+//!   the view; the ideal count, which knows the whole track, can). Avoidable = violations −
 //!   unavoidable − at first sight.
 //! - **Ideal count**: the fewest captures among the truth samples from the
 //!   sample nearest the first capture to the sample nearest the last capture,
@@ -93,6 +95,9 @@ pub struct CaptureAt {
     pub mono_ns: u64,
     /// Truth distance along the flown path at the capture instant, metres.
     pub along_m: f64,
+    /// Where the trigger decided it: `along_m`, or before it when the picture came later (an
+    /// external camera's delay after the command).
+    pub decided_along_m: f64,
     pub north_m: f64,
     pub east_m: f64,
     pub undersampled: bool,

@@ -412,6 +412,7 @@ mod tests {
             seq,
             mono_ns: 0,
             along_m,
+            decided_along_m: along_m,
             north_m: 0.3 * along_m,
             east_m: along_m,
             undersampled,

@@ -310,8 +310,9 @@ pub fn summarize(
         s.violations += 1;
         s.worst_excess_ratio = max_opt(s.worst_excess_ratio, ratio);
         // The interval's samples before the last opportunity step: what was seen before
-        // the frame that closed it.
-        let cut_m = b - step_limit_m - EPS_M;
+        // the frame that closed it (none: nothing of it was, as when a camera's picture
+        // comes a way after the frame that commanded it).
+        let cut_m = w[1].decided_along_m.min(b) - step_limit_m - EPS_M;
         let seen_before = pts[within(&pts, a, b)]
             .iter()
             .take_while(|p| p.along_m < cut_m)
@@ -322,7 +323,7 @@ pub fn summarize(
         let class = if strictly_between(&pts, a, b) == 0 || feasible(d, step_limit_m) {
             s.unavoidable_violations += 1;
             ViolationClass::Unavoidable
-        } else if seen_before.is_some_and(|m| feasible(d, m)) {
+        } else if seen_before.is_none_or(|m| feasible(d, m)) {
             s.first_sight_violations += 1;
             ViolationClass::FirstSight
         } else {
@@ -714,6 +715,7 @@ mod tests {
             seq,
             mono_ns: (along_m * 1e8) as u64,
             along_m,
+            decided_along_m: along_m,
             north_m: along_m,
             east_m: 0.0,
             undersampled: false,
@@ -844,6 +846,32 @@ mod tests {
         assert_eq!(s.violations, 1);
         assert_eq!(s.first_sight_violations, 0);
         assert_eq!(s.avoidable_violations, 1);
+        // An external camera's pictures 1 m apart, the last at 5.1 past 5.0's 0.3 m: taken
+        // where decided, avoidable (5.0 showed it before the capture at 5.1).
+        let mut late = at(&[0.1, 1.1, 2.1, 3.1, 4.1, 5.1, 5.4]);
+        let s = summarize(&t, &late, 1.0, 0.0);
+        assert_eq!((s.violations, s.avoidable_violations), (1, 1));
+        // Each commanded 0.15 m (at 10 m/s, 15 ms) before its picture: the one at 5.1 was
+        // decided at 4.95, before 5.0 showed 0.3 m.
+        for c in &mut late {
+            c.decided_along_m = c.along_m - 0.15;
+        }
+        let s = summarize(&t, &late, 1.0, 0.0);
+        assert_eq!(s.violations, 1);
+        assert_eq!(s.first_sight_violations, 1);
+        assert_eq!(s.avoidable_violations, 0);
+        // Decided 0.05 m before (at 5.05): 5.0 had shown it.
+        for c in &mut late {
+            c.decided_along_m = c.along_m - 0.05;
+        }
+        let s = summarize(&t, &late, 1.0, 0.0);
+        assert_eq!(s.avoidable_violations, 1);
+        // Decided 1.2 m before: nothing of [4.1, 5.1] had been seen, at first sight.
+        for c in &mut late {
+            c.decided_along_m = c.along_m - 1.2;
+        }
+        let s = summarize(&t, &late, 1.0, 0.0);
+        assert_eq!(s.first_sight_violations, 1);
         // The dip below: [3, 4] is at first sight, [4, 5] and [5, 6] are not.
         let dip = track(|x| Some(if (4.0..=5.0).contains(&x) { 0.5 } else { 1.0 }));
         let s = summarize(&dip, &every(10, 100), 1.0, 0.0);
