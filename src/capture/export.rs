@@ -16,7 +16,7 @@ use serde::{Deserialize, Serialize};
 use super::external::{
     is_external, move_to_exposure, pair, CameraDir, Moved, PairError, Pairing, Trigger,
 };
-use super::record::{is_image_name_for, Attitude, CameraIntrinsics, CaptureRecord};
+use super::record::{is_image_name_for, Attitude, CameraIntrinsics, CaptureMode, CaptureRecord};
 use super::store::{parse_manifest, CaptureStore, DirStore, Manifest, StoreError, MANIFEST};
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -413,7 +413,7 @@ pub fn write_exports_with<S: CaptureStore + ?Sized>(
 }
 
 /// What [`export_flight`] found and wrote.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct FlightExport {
     pub records: usize,
     /// Bytes of a torn manifest line or telemetry entry cut (a stop mid-write).
@@ -427,6 +427,11 @@ pub struct FlightExport {
     /// Captures an external camera took (`capture::external::is_external`): their
     /// pictures are on the camera's card, not here.
     pub external_captures: usize,
+    /// `camera_command` captures, and of them those placed where the autopilot reported
+    /// their picture (`picture_after_ms`), with the median time from decision to picture.
+    pub commanded: usize,
+    pub commanded_reported: usize,
+    pub picture_after_median_ms: Option<f64>,
 }
 
 /// Why [`export_flight_with_camera`] wrote nothing.
@@ -523,6 +528,12 @@ fn write_flight(
         })
         .collect();
     let exports = write_exports_with(store, &present, external)?;
+    let mut after: Vec<f64> = m
+        .records
+        .iter()
+        .filter_map(|r| r.picture_after_ms)
+        .collect();
+    after.sort_by(f64::total_cmp);
     Ok(FlightExport {
         records: m.records.len(),
         recovered_bytes: store.recovered_bytes(),
@@ -530,6 +541,13 @@ fn write_flight(
         exports,
         missing_images,
         external_captures: m.records.iter().filter(|r| is_external(r)).count(),
+        commanded: m
+            .records
+            .iter()
+            .filter(|r| r.capture_mode == CaptureMode::CameraCommand)
+            .count(),
+        commanded_reported: after.len(),
+        picture_after_median_ms: after.get(after.len() / 2).copied(),
     })
 }
 

@@ -144,6 +144,15 @@ pub fn run(a: Args) -> Result<ExitCode> {
         })?;
     let mut s = report(&dir, &done, false);
     s += &camera_report(&camera, &pairing);
+    if done.commanded > 0 {
+        let when = done.picture_after_median_ms.map_or(String::new(), |ms| {
+            format!(" ({ms:.0} ms after alfd decided them, median)")
+        });
+        s += &format!(
+            "placed           {} of {} commanded captures where the autopilot reported their picture{when}, the rest where alfd decided them; --camera-delay-s is the camera's lag after that\n",
+            done.commanded_reported, done.commanded
+        );
+    }
     if let (Some(d), Some(m)) = (a.camera_delay_s, moved) {
         s += &delay_report(d, &m);
     }
