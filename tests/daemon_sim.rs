@@ -277,6 +277,22 @@ fn camera_command_mode_commands_the_camera_once_per_logged_capture() {
     }
     assert_eq!(out.report.pictures_reported, m.records.len() as u64);
     assert_eq!(out.report.pictures_unreported, 0);
+    // A line of 40 m ends within the camera's delay of its last command: the stop reads
+    // that picture's report (the link stops last), and the capture is placed too.
+    let dir = tempfile::tempdir().unwrap();
+    let short = SimArgs {
+        length_m: Some(40.0),
+        ..args(dir.path(), CaptureMode::CameraCommand)
+    };
+    let out = run_sim_on_simulated_time(short, SimHooks::default(), std::future::pending())
+        .expect("the sim runs");
+    let m = read_manifest(&out.flight_dir.join("manifest.jsonl")).unwrap();
+    let last = m.records.last().expect("captures");
+    assert!(last.picture_after_ms.is_some(), "{last:?}");
+    assert_eq!(
+        (out.report.pictures_reported, out.report.pictures_unreported),
+        (m.records.len() as u64, 0)
+    );
     camera_card_pairs_with_the_manifest(&out, &m.records);
 }
 

@@ -146,7 +146,7 @@ fn summary(c: &Config) -> String {
         );
         let mode = match c.capture.mode {
             CaptureMode::Frame => "frames saved by alfd",
-            CaptureMode::CameraCommand => "an external camera commanded (its pictures on its card: alfd export --images)",
+            CaptureMode::CameraCommand => "an external camera commanded, each capture logged at the autopilot's report of its picture (its pictures on its card: alfd export --images)",
             CaptureMode::AutopilotDistance => "the autopilot's distance trigger (its camera's pictures on its card: alfd export --images)",
             CaptureMode::Command => "on command",
         };

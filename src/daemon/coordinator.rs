@@ -839,6 +839,14 @@ impl Coordinator {
         self.write_in_order(out);
     }
 
+    /// Captures waiting for their picture's report.
+    pub fn awaiting_pictures(&self) -> usize {
+        self.locating
+            .values()
+            .filter(|w| matches!(w.picture, Picture::Awaited { .. }))
+            .count()
+    }
+
     /// At the daemon's stop: no capture waits for its picture's report any longer.
     pub fn stop_awaiting_pictures(&mut self) -> Vec<Action> {
         let mut out = Vec::new();

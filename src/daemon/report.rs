@@ -120,7 +120,7 @@ impl RunReport {
             ),
         };
         let mut s = format!(
-            "{} commands sent, {} captures placed where the autopilot reported their picture{median}, {} where decided (no report within {} s)",
+            "{} commands sent, {} captures placed where the autopilot reported their picture{median}, {} where decided (no report within {} s, or before the stop)",
             self.camera_commands,
             self.pictures_reported,
             self.pictures_unreported,

@@ -14,6 +14,9 @@ use std::sync::Arc;
 use std::time::Duration;
 use tokio::sync::{mpsc, watch};
 
+/// At the stop, how long the reports of pictures commanded just before it are read.
+pub const PICTURE_STOP_WAIT: Duration = Duration::from_millis(250);
+
 /// The coordinator and every queue into it.
 pub(super) struct Loop {
     pub co: Coordinator,
@@ -95,13 +98,17 @@ impl Loop {
     }
 
     /// Hands the backlog and the captures still waiting for their pose (each within
-    /// `LOCATE_WAIT`) or their picture's report (no longer) to the writer, taking the writer's answers meanwhile (it waits on them).
+    /// `LOCATE_WAIT`) or their picture's report to the writer, taking the writer's answers
+    /// meanwhile (it waits on them). A picture commanded just before the stop is reported
+    /// within the camera's delay, and the link stops last: its report is read for up to
+    /// [`PICTURE_STOP_WAIT`], then no capture waits for one.
     pub async fn hand_over(&mut self) {
-        // No report of a picture is read from here on: those still awaited are not coming.
-        let a = self.co.stop_awaiting_pictures();
-        self.out.perform(&mut self.co, a).await;
+        let deadline = tokio::time::Instant::now() + PICTURE_STOP_WAIT;
+        let mut reading = true;
         while !self.out.backlog.is_empty() || self.co.locating() > 0 {
             let co = &mut self.co;
+            let link = &self.link;
+            let awaiting = reading && co.awaiting_pictures() > 0;
             let actions = tokio::select! {
                 biased;
                 Some(permit) = reserve(self.out.writer.as_ref()), if !self.out.backlog.is_empty() => {
@@ -111,7 +118,18 @@ impl Loop {
                     Vec::new()
                 }
                 Some(w) = self.written.recv() => written(co, w),
-                Some((id, l)) = self.located.recv(), if co.locating() > 0 => co.on_located(id, l),
+                Some((id, l)) = self.located.recv(), if co.locating() > co.awaiting_pictures() => co.on_located(id, l),
+                Some(ev) = self.link_events.recv(), if awaiting => match ev {
+                    // Only the pictures' reports: the daemon takes nothing new now.
+                    LinkEvent::CameraTrigger { .. } | LinkEvent::CameraFeedback { .. } => {
+                        co.on_link_event(ev, now(link).await)
+                    }
+                    _ => Vec::new(),
+                },
+                _ = tokio::time::sleep_until(deadline), if awaiting => {
+                    reading = false;
+                    co.stop_awaiting_pictures()
+                }
                 else => break,
             };
             self.out.perform(&mut self.co, actions).await;
