@@ -16,7 +16,9 @@ use serde::{Deserialize, Serialize};
 use super::external::{
     is_external, move_to_exposure, pair, CameraDir, Moved, PairError, Pairing, Trigger,
 };
-use super::record::{is_image_name_for, Attitude, CameraIntrinsics, CaptureMode, CaptureRecord};
+use super::record::{
+    is_image_name_for, pictures_after_ms, Attitude, CameraIntrinsics, CaptureMode, CaptureRecord,
+};
 use super::store::{parse_manifest, CaptureStore, DirStore, Manifest, StoreError, MANIFEST};
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -528,12 +530,7 @@ fn write_flight(
         })
         .collect();
     let exports = write_exports_with(store, &present, external)?;
-    let mut after: Vec<f64> = m
-        .records
-        .iter()
-        .filter_map(|r| r.picture_after_ms)
-        .collect();
-    after.sort_by(f64::total_cmp);
+    let after = pictures_after_ms(&m.records);
     Ok(FlightExport {
         records: m.records.len(),
         recovered_bytes: store.recovered_bytes(),

@@ -281,6 +281,14 @@ impl ImageFormat {
     }
 }
 
+/// The `picture_after_ms` of the records that have one (the `camera_command` captures the
+/// autopilot's report placed), in increasing order.
+pub fn pictures_after_ms(records: &[CaptureRecord]) -> Vec<f64> {
+    let mut after: Vec<f64> = records.iter().filter_map(|r| r.picture_after_ms).collect();
+    after.sort_by(f64::total_cmp);
+    after
+}
+
 /// The file name of capture `seq`: `IMG_000123.jpg` (six digits at least).
 pub fn image_file_name(seq: u64, format: ImageFormat) -> String {
     format!("IMG_{seq:06}.{}", format.extension())

@@ -100,17 +100,10 @@ impl RunReport {
             ),
         }
     }
-}
 
-impl RunReport {
     /// How the camera commands' pictures were placed, as the summary and the log say it.
     pub fn pictures_text(&self) -> String {
-        let mut after: Vec<f64> = self
-            .records
-            .iter()
-            .filter_map(|r| r.picture_after_ms)
-            .collect();
-        after.sort_by(f64::total_cmp);
+        let after = crate::capture::record::pictures_after_ms(&self.records);
         let median = match after.as_slice() {
             [] => String::new(),
             a => format!(

@@ -118,7 +118,7 @@ impl Loop {
                     Vec::new()
                 }
                 Some(w) = self.written.recv() => written(co, w),
-                Some((id, l)) = self.located.recv(), if co.locating() > co.awaiting_pictures() => co.on_located(id, l),
+                Some((id, l)) = self.located.recv(), if co.locating() > 0 => co.on_located(id, l),
                 Some(ev) = self.link_events.recv(), if awaiting => match ev {
                     // Only the pictures' reports: the daemon takes nothing new now.
                     LinkEvent::CameraTrigger { .. } | LinkEvent::CameraFeedback { .. } => {
