@@ -544,10 +544,9 @@ impl Coordinator {
         } else {
             Picture::NotAwaited
         };
+        let extrapolated = record.pose_age_ms > 0.0;
         let what = Awaits::Decided(Box::new(record));
-        if self.locating.len() < LOCATING_MAX
-            && matches!(&what, Awaits::Decided(r) if r.pose_age_ms > 0.0)
-        {
+        if extrapolated && self.locating.len() < LOCATING_MAX {
             self.wait_for_pose(&mut out, what, mono_ns, picture);
         } else {
             // In line after any capture still waiting for its pose; written at once when
@@ -909,33 +908,31 @@ impl Coordinator {
                     self.asked_located(out, asked, w.mono_ns, located)
                 }
                 (Awaits::Decided(mut record), answer) => {
-                    let placed = matches!(&answer, Answer::Located(l) if l.is_ok());
-                    if matches!(w.picture, Picture::Reported { .. }) && !placed {
+                    let located = match &answer {
+                        Answer::Located(l) => l.as_ref().as_ref().ok(),
+                        _ => None,
+                    };
+                    if let Some(l) = located {
+                        relocate(
+                            &mut record,
+                            &l.pose,
+                            l.boot_us,
+                            &l.local,
+                            self.config.depth.mount_pitch_rad,
+                        );
+                        if let Picture::Reported { mono_ns } = w.picture {
+                            // The picture's instant and place, not the decision's.
+                            self.report.pictures_reported += 1;
+                            record.picture_after_ms =
+                                Some(mono_ns as f64 * 1e-6 - record.mono_ns as f64 * 1e-6);
+                            record.mono_ns = mono_ns;
+                            record.time_unix_us = l.unix_us;
+                            record.distance_since_last_m =
+                                distance_m(self.last_capture_ne, &l.pose);
+                        }
+                    } else if matches!(w.picture, Picture::Reported { .. }) {
                         // Reported, but no pose there: where it was decided, unplaced.
                         self.report.pictures_unreported += 1;
-                    }
-                    if let Answer::Located(located) = &answer {
-                        if let Ok(l) = located.as_ref() {
-                            relocate(
-                                &mut record,
-                                &l.pose,
-                                l.boot_us,
-                                &l.local,
-                                self.config.depth.mount_pitch_rad,
-                            );
-                            if let Picture::Reported { mono_ns } = w.picture {
-                                // The picture's instant and place, not the decision's.
-                                self.report.pictures_reported += 1;
-                                record.picture_after_ms =
-                                    Some(mono_ns as f64 * 1e-6 - record.mono_ns as f64 * 1e-6);
-                                record.mono_ns = mono_ns;
-                                record.time_unix_us = l.unix_us;
-                                let ne = [l.pose.pos_ned_m.x, l.pose.pos_ned_m.y];
-                                record.distance_since_last_m = self
-                                    .last_capture_ne
-                                    .map(|p| (ne[0] - p[0]).hypot(ne[1] - p[1]));
-                            }
-                        }
                     }
                     // No later pose: the capture keeps the one it was decided with (its
                     // pose_age_ms says how far that reached); it is never dropped.
@@ -973,9 +970,7 @@ impl Coordinator {
         let (capture, mode, requested_by, image_format) = match asked {
             Asked::Autopilot { from, tightest_m } => {
                 self.report.autopilot_triggers += 1;
-                let distance = self
-                    .last_trigger_ne
-                    .map(|p| (ne[0] - p[0]).hypot(ne[1] - p[1]));
+                let distance = distance_m(self.last_trigger_ne, &l.pose);
                 self.last_trigger_ne = Some(ne);
                 // The frames of the interval this picture closes, split at its own
                 // instant (a frame estimated after the picture, before it was heard
@@ -1000,9 +995,7 @@ impl Coordinator {
                         self.spacing_of(e)
                     });
                 let capture = Capture {
-                    distance_since_last_m: self
-                        .last_capture_ne
-                        .map(|p| (ne[0] - p[0]).hypot(ne[1] - p[1])),
+                    distance_since_last_m: distance_m(self.last_capture_ne, &l.pose),
                     spacing_m: spacing,
                     // Not the trigger's decision: the spacing is reported, not judged.
                     undersampled: false,
@@ -1177,6 +1170,11 @@ impl Coordinator {
                 .map(send),
         );
     }
+}
+
+/// The horizontal way from `from` (north, east) to the pose, metres; `None` without `from`.
+fn distance_m(from: Option<[f64; 2]>, to: &Pose) -> Option<f64> {
+    from.map(|p| (to.pos_ned_m.x - p[0]).hypot(to.pos_ned_m.y - p[1]))
 }
 
 /// The middle value (the upper of the two middle ones), `None` for none.
