@@ -599,32 +599,55 @@ fn score_view(
     };
     for (r, img) in images.iter().enumerate() {
         sc.psnr_db[r] = psnr(img, &target.lum, 1.0).min(PSNR_CAP_DB);
+        let mut sums = ClassSums::default();
         for (p, (&a, &t)) in img.iter().zip(&target.lum).enumerate() {
-            let cl = c.class[p] as usize;
-            if cl < 3 {
-                let d = a as f64 - t as f64;
-                sc.class_sq[r][cl] += d * d;
-            }
+            let d = a as f64 - t as f64;
+            sums.add(c.class[p], d * d);
         }
+        sc.class_sq[r] = sums.0;
         if with_ssim {
             if let Some(map) = ssim_map(img, &target.lum, g.width, g.height, 1.0) {
                 sc.ssim[r] = map.mean();
                 let half = crate::metrics::SSIM_WINDOW / 2;
+                let mut sums = ClassSums::default();
+                let mut windows = [0usize; 3];
                 for mr in 0..map.height {
-                    for mc in 0..map.width {
-                        let cl = c.class[(mr + half) * g.width + mc + half] as usize;
-                        if cl < 3 {
-                            sc.class_ssim[r][cl] += map.values[mr * map.width + mc];
-                            if r == 0 {
-                                sc.class_windows[cl] += 1;
-                            }
+                    let classes = &c.class[(mr + half) * g.width + half..][..map.width];
+                    let values = &map.values[mr * map.width..][..map.width];
+                    for (&cl, &v) in classes.iter().zip(values) {
+                        sums.add(cl, v);
+                        if let Some(n) = windows.get_mut(cl as usize) {
+                            *n += 1;
                         }
                     }
+                }
+                sc.class_ssim[r] = sums.0;
+                if r == 0 {
+                    sc.class_windows = windows;
                 }
             }
         }
     }
     sc
+}
+
+/// Sums per pixel class (both, one, neither neighbour sees it; other classes left out),
+/// each in pixel order from zero. The three sums live in registers: added through an
+/// index into an array, each addition waited on the store of the one before it.
+#[derive(Default)]
+struct ClassSums([f64; 3]);
+
+impl ClassSums {
+    #[inline]
+    fn add(&mut self, class: u8, v: f64) {
+        let [s0, s1, s2] = &mut self.0;
+        match class {
+            0 => *s0 += v,
+            1 => *s1 += v,
+            2 => *s2 += v,
+            _ => {}
+        }
+    }
 }
 
 struct Scorer<'a> {

@@ -252,15 +252,15 @@ impl<'a> Truth<'a> {
         let mut disparities = Vec::with_capacity(w * h);
         let mut exact_tests = 0;
         let sc = self.g.pitch_rad.sin_cos();
-        for r in 0..h {
-            for i in 0..w {
+        let (xs, ys) = self.g.norm_tables();
+        for (r, &y) in ys.iter().enumerate() {
+            for (i, &x) in xs.iter().enumerate() {
                 let k = r * w + i;
                 let d = view.depth_m[k] as f64;
                 if !(d.is_finite() && d > 0.0) {
                     counts[SKY as usize] += 1;
                     continue;
                 }
-                let (x, y) = self.g.norm(i, r);
                 let mut inside = 0;
                 let mut seen = 0;
                 let mut at = [(0.0, 0.0); 2];
