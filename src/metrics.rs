@@ -73,17 +73,43 @@ pub fn ssim_map(a: &[f32], b: &[f32], width: usize, height: usize, peak: f64) ->
     if width < SSIM_WINDOW || height < SSIM_WINDOW {
         return None;
     }
-    let g = gaussian_window();
     let c1 = (SSIM_K1 * peak).powi(2);
     let c2 = (SSIM_K2 * peak).powi(2);
     let ow = width - SSIM_WINDOW + 1;
-    let oh = height - SSIM_WINDOW + 1;
     // Horizontal pass of the five moments, then vertical, in f64. Each moment
     // is its own plane and each tap a pass over a whole line, so the inner
     // loops run over contiguous values and vectorise; every output still sums
     // its taps in the same order from zero, so the values are the same bits
     // as one window at a time.
-    let mut hz = [(); 5].map(|_| vec![0f64; ow * height]);
+    HORIZONTAL.with_borrow_mut(|scratch| {
+        scratch.clear();
+        scratch.resize(5 * ow * height, 0.0);
+        let planes = scratch.chunks_exact_mut(ow * height);
+        let hz: [&mut [f64]; 5] = planes.collect::<Vec<_>>().try_into().expect("five planes");
+        moments_map(a, b, width, height, hz, c1, c2)
+    })
+}
+
+thread_local! {
+    /// [`ssim_map`]'s horizontal planes, kept between calls: five planes of a
+    /// frame's size freshly allocated for every map were returned to the
+    /// system and faulted in again each time (`alfd eval` scores thousands).
+    static HORIZONTAL: std::cell::RefCell<Vec<f64>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// [`ssim_map`] on its zeroed horizontal planes.
+fn moments_map(
+    a: &[f32],
+    b: &[f32],
+    width: usize,
+    height: usize,
+    mut hz: [&mut [f64]; 5],
+    c1: f64,
+    c2: f64,
+) -> Option<SsimMap> {
+    let g = gaussian_window();
+    let ow = width - SSIM_WINDOW + 1;
+    let oh = height - SSIM_WINDOW + 1;
     for r in 0..height {
         let ra = &a[r * width..(r + 1) * width];
         let rb = &b[r * width..(r + 1) * width];

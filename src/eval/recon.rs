@@ -312,7 +312,9 @@ fn warp_one(g: &Geometry, src: &View, x_t: f64) -> (Vec<f32>, Vec<bool>) {
     let (w, h) = (g.width, g.height);
     let n = w * h;
     // Forward: splat the source's depth into the target's z-buffer.
-    let mut z = vec![f64::INFINITY; n];
+    let (mut z, mut zf) = WARP_DEPTHS.take();
+    z.clear();
+    z.resize(n, f64::INFINITY);
     let to_target = src.x_m - x_t;
     let sc = g.pitch_rad.sin_cos();
     let (xs, ys) = g.norm_tables();
@@ -333,7 +335,8 @@ fn warp_one(g: &Geometry, src: &View, x_t: f64) -> (Vec<f32>, Vec<bool>) {
     }
     // Cracks left by nearest-pixel splatting: the farthest neighbour's depth.
     // A disocclusion hole filled so fails the consistency test below, as it should.
-    let mut zf = z.clone();
+    zf.clear();
+    zf.extend_from_slice(&z);
     for r in 0..h {
         for i in 0..w {
             if z[r * w + i].is_finite() {
@@ -394,7 +397,16 @@ fn warp_one(g: &Geometry, src: &View, x_t: f64) -> (Vec<f32>, Vec<bool>) {
             }
         }
     }
+    WARP_DEPTHS.set((z, zf));
     (lum, valid)
+}
+
+thread_local! {
+    /// [`warp_one`]'s z-buffer and its crack-filled copy, kept between calls: freshly
+    /// allocated for each of `alfd eval`'s thousands of warps, their pages were returned to
+    /// the system and faulted in again.
+    static WARP_DEPTHS: std::cell::Cell<(Vec<f64>, Vec<f64>)> =
+        const { std::cell::Cell::new((Vec::new(), Vec::new())) };
 }
 
 /// (b) Depth-aided warping; pixels neither neighbour sees fall back to (a).
