@@ -57,6 +57,9 @@ pub const TOLERANCES_DB: [f64; 4] = [0.5, 1.0, 2.0, 0.5];
 /// light field of the literature (at most 1 px of disparity between adjacent
 /// captures at the nearest depth) rather than the finest swept spacing.
 pub const DENSE_CRITERION: usize = 3;
+/// Views rendered at a time while the estimators take the ones before.
+const RENDER_BATCH: usize = 8;
+
 /// Segments per scene for the empirical permissible spacing.
 pub const SEGMENTS: usize = 4;
 /// In-between views of one segment and spacing whose quality is scored (the
@@ -1053,27 +1056,52 @@ pub fn evaluate_scene(
         .map(|&m| Estimator::new(method_params(m, 1.0)))
         .chain([Estimator::new(quality_params())])
         .collect();
-    for &x in &xs {
+    // The estimators take the views in order (their state runs from frame to frame), on one
+    // thread; the next views render on the other meanwhile. Rendered and estimated in
+    // turn, the stage kept only 1.2 of the 2 cores busy.
+    let render_view = |x: f64| {
         let frame = render(
             scene,
             &survey_camera(scene, x, res.width, res.height),
             &opts,
         );
         let z16 = frame.z16(&sensor);
-        let (e, vis) = view_estimate(&mut ests, &z16, &g, &intr_g);
-        estimates.push(e);
-        visibilities.push(vis);
-        kept.push(closedloop::View {
-            depth: closedloop::DepthSnapshot::kept(&z16, &intr_g),
-            cam_to_ned: cam_to_world_cv,
-            pos_ned_m: glam::DVec3::new(x, s.y_m, s.altitude_m),
-        });
-        views.push(View {
-            x_m: x,
-            lum: frame.luminance(),
-            depth_m: frame.depth_m,
-        });
-        pb.inc(1);
+        (x, frame, z16)
+    };
+    let render_batch = |xs: &[f64]| -> Vec<_> { xs.par_iter().map(|&x| render_view(x)).collect() };
+    let mut batches = xs.chunks(RENDER_BATCH);
+    let mut rendered = batches.next().map_or(Vec::new(), render_batch);
+    loop {
+        let next = batches.next();
+        let current = std::mem::take(&mut rendered);
+        let estimate_batch = || {
+            for (x, frame, z16) in current {
+                let (e, vis) = view_estimate(&mut ests, &z16, &g, &intr_g);
+                estimates.push(e);
+                visibilities.push(vis);
+                kept.push(closedloop::View {
+                    depth: closedloop::DepthSnapshot::kept(&z16, &intr_g),
+                    cam_to_ned: cam_to_world_cv,
+                    pos_ned_m: glam::DVec3::new(x, s.y_m, s.altitude_m),
+                });
+                views.push(View {
+                    x_m: x,
+                    lum: frame.luminance(),
+                    depth_m: frame.depth_m,
+                });
+                pb.inc(1);
+            }
+        };
+        match next {
+            Some(batch) => {
+                let (following, ()) = rayon::join(|| render_batch(batch), estimate_batch);
+                rendered = following;
+            }
+            None => {
+                estimate_batch();
+                break;
+            }
+        }
     }
     let render_s = start.elapsed().as_secs_f64();
     let ranges: Vec<_> = estimates.iter().map(|e| (e.w_min, e.w_max)).collect();
