@@ -38,17 +38,19 @@ struct Flight {
 /// climb to 60 m, then a 150 m line) with its camera `backend`, and `alfd run` on its pty
 /// with `mode`.
 async fn fly(mode: &str, backend: &str) -> Flight {
-    fly_with_delay(mode, backend, 0.0).await
+    fly_with_camera(mode, backend, "").await
 }
 
 /// [`fly`], the camera taking a commanded picture `delay_ms` after the command.
-async fn fly_with_delay(mode: &str, backend: &str, delay_ms: f64) -> Flight {
+/// A flight whose camera has `camera` besides its backend (TOML lines of firmware-sim's
+/// `[camera]`).
+async fn fly_with_camera(mode: &str, backend: &str, camera: &str) -> Flight {
     let dir = tempfile::tempdir().unwrap();
     let mut sc = SimConfig::from_toml(&format!(
         "autopilot = \"ardupilot\"\n\
          [vehicle]\norigin_delay_s = 4\nground_s = 5\nclimb_mps = 20\n\
          [survey]\npattern = \"line\"\nlength_m = 150\nspeed_mps = 10\nwind_m = 0\nwind_deg = 0\n\
-         [camera]\nbackend = \"{backend}\"\ndelay_ms = {delay_ms}\n",
+         [camera]\nbackend = \"{backend}\"\n{camera}\n",
     ))
     .unwrap();
     sc.survey.altitude_m = ALTITUDE_M;
@@ -220,7 +222,8 @@ async fn ardupilot_distance_trigger_through_a_servo_camera() {
 /// not where alfd decided it (0.8 m and more before, at 10 m/s).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn ardupilot_camera_command_capture_is_logged_at_its_picture() {
-    let f = fly_with_delay("camera_command", "servo", 80.0).await;
+    // The camera is 80 ms late, and not ready for the first command: the autopilot refuses it.
+    let f = fly_with_camera("camera_command", "servo", "delay_ms = 80\nrefuse_first = 1").await;
     f.until("5 captures logged", |m, _| lines(m) >= 5).await;
     let (records, log, ms, f) = f.land().await;
     assert!(records.len() >= 5);
@@ -232,15 +235,42 @@ async fn ardupilot_camera_command_capture_is_logged_at_its_picture() {
             .unwrap_or_else(|| panic!("{name} in the run's log"))
     };
     let reported = field("pictures_reported");
+    assert_eq!(field("pictures_refused"), 1);
+    // The refused command's capture is logged where it was decided, with no picture.
+    assert_eq!(records[0].picture_after_ms, None);
     // The last capture may be cut by the stop before its picture's report.
     assert!(
-        reported + 1 >= records.len() as u64,
+        reported + 2 >= records.len() as u64,
         "{reported} of {}",
         records.len()
+    );
+    // Each placed capture took its own command's picture, not the next one's (which the
+    // first report, going to the oldest capture waiting, would give every capture after a
+    // refused one): its picture is late by the camera's 80 ms and the command's way to the
+    // autopilot, less than the time from one decision to the next.
+    let decided_ns: Vec<f64> = records
+        .iter()
+        .map(|r| r.mono_ns as f64 - r.picture_after_ms.unwrap_or(0.0) * 1e6)
+        .collect();
+    let gap_ms = decided_ns
+        .windows(2)
+        .map(|w| (w[1] - w[0]) * 1e-6)
+        .fold(f64::INFINITY, f64::min);
+    eprintln!(
+        "captures decided {gap_ms:.0} ms apart at least; pictures {:?} ms after",
+        records
+            .iter()
+            .map(|r| r.picture_after_ms)
+            .collect::<Vec<_>>()
     );
     for r in records.iter().filter(|r| r.picture_after_ms.is_some()) {
         let after = r.picture_after_ms.unwrap();
         assert!(after > 79.0, "capture {}: {after} ms", r.seq);
+        assert!(
+            after < 80.0 + gap_ms,
+            "capture {}: {after} ms, captures decided {gap_ms} ms apart at least",
+            r.seq
+        );
         let nearest = ms
             .pictures
             .iter()

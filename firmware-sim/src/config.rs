@@ -191,6 +191,9 @@ pub struct SimConfig {
     /// picture, which is reported at its own instant (as a hot-shoe feedback pin times it):
     /// the autopilot's scheduling and the camera's shutter lag. Zero: at the command.
     pub camera_delay: Duration,
+    /// The first this many capture commands are refused (MAV_RESULT_TEMPORARILY_REJECTED,
+    /// no picture), as an autopilot does while its camera is not ready.
+    pub camera_refuse_first: u32,
 }
 
 /// A ground station answering TIMESYNC requests with its own clock: each request heard on the
@@ -260,6 +263,8 @@ struct RawCamera {
     backend: Option<String>,
     /// Command to picture, ms (0 to 2000).
     delay_ms: f64,
+    /// Capture commands refused at the start (0 to 1000).
+    refuse_first: u32,
 }
 
 #[derive(Deserialize)]
@@ -601,6 +606,15 @@ impl SimConfig {
             ));
         }
         let camera_delay = Duration::from_secs_f64(delay_ms * 1e-3);
+        let camera_refuse_first = raw.camera.refuse_first;
+        if camera_refuse_first > 1000 {
+            return Err(bad(
+                "camera.refuse_first",
+                format!(
+                    "{camera_refuse_first}: capture commands refused at the start are 0 to 1000"
+                ),
+            ));
+        }
         let transport = match l.transport.as_str() {
             "pty" => Transport::Pty { link: l.path },
             "serial" => Transport::Serial {
@@ -746,6 +760,7 @@ impl SimConfig {
             vehicle,
             camera,
             camera_delay,
+            camera_refuse_first,
             transport,
             mavlink_version: l.mavlink_version,
             system_id: l.system_id,

@@ -278,6 +278,8 @@ struct Engine {
     pending: Vec<(u64, Fault)>,
     /// Pictures capture commands asked for, due at these instants (`camera_delay` after them).
     command_pictures: std::collections::VecDeque<u64>,
+    /// Capture commands refused so far (`camera_refuse_first`).
+    commands_refused: u32,
     truth: Option<std::io::BufWriter<std::fs::File>>,
 }
 
@@ -348,6 +350,7 @@ impl Engine {
             caminfo_next_ns: 0,
             pending,
             command_pictures: Default::default(),
+            commands_refused: 0,
             truth,
             cfg,
             shared,
@@ -1243,6 +1246,12 @@ impl Engine {
                 }
                 self.schedule_trigger(now);
                 MavResult::MAV_RESULT_ACCEPTED
+            }
+            MavCmd::MAV_CMD_DO_DIGICAM_CONTROL | MavCmd::MAV_CMD_IMAGE_START_CAPTURE
+                if self.commands_refused < self.cfg.camera_refuse_first =>
+            {
+                self.commands_refused += 1;
+                MavResult::MAV_RESULT_TEMPORARILY_REJECTED
             }
             MavCmd::MAV_CMD_DO_DIGICAM_CONTROL => {
                 if c.param5 == 1.0 {

@@ -76,14 +76,19 @@ fn the_profile_sets_its_behaviours_and_explicit_keys_win() {
     let generic = SimConfig::default();
     assert_eq!(generic.camera, CameraBackend::Trigger);
     assert_eq!(generic.camera_delay, Duration::ZERO);
-    let late = SimConfig::from_toml("[camera]\ndelay_ms = 80\n").unwrap();
+    let late = SimConfig::from_toml("[camera]\ndelay_ms = 80\nrefuse_first = 2\n").unwrap();
     assert_eq!(late.camera_delay, Duration::from_millis(80));
+    assert_eq!(
+        (generic.camera_refuse_first, late.camera_refuse_first),
+        (0, 2)
+    );
     assert_eq!(generic.vehicle.origin_delay, Duration::ZERO);
     for (text, field) in [
         ("autopilot = \"px5\"", "autopilot"),
         ("[camera]\nbackend = \"film\"", "camera.backend"),
         ("[camera]\ndelay_ms = -1", "camera.delay_ms"),
         ("[camera]\ndelay_ms = 2500", "camera.delay_ms"),
+        ("[camera]\nrefuse_first = 1001", "camera.refuse_first"),
         ("[vehicle]\nclimb_mps = 0", "vehicle.climb_mps"),
         (
             "[vehicle]\norigin_delay_s = 9\nground_s = 10",

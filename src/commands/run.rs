@@ -118,6 +118,7 @@ fn print_report(r: &RunReport) {
         tracing::info!(
             pictures_reported = r.pictures_reported,
             pictures_unreported = r.pictures_unreported,
+            pictures_refused = r.pictures_refused,
             reports_unmatched = r.reports_unmatched,
             "the external camera: {}",
             r.pictures_text(),

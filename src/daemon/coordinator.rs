@@ -216,6 +216,9 @@ pub struct CoordinatorReport {
     pub command_captures: u64,
     pub camera_commands: u64,
     pub camera_command_failures: u64,
+    /// `camera_command` captures whose command the autopilot refused: logged where decided
+    /// at its answer, without waiting for a picture.
+    pub pictures_refused: u64,
     pub autopilot_triggers: u64,
     /// Of those, the pictures known by the autopilot's CAMERA_FEEDBACK alone (ArduPilot's
     /// servo and relay cameras), and of these the ones placed at the feedback's arrival
@@ -277,6 +280,10 @@ pub struct Coordinator {
     /// the latest delays from a decision to its picture.
     unreported_in_row: u32,
     picture_delays_ns: VecDeque<u64>,
+    /// `camera_command`: the captures whose command the autopilot has not answered yet, in
+    /// the order sent (their key in `locating`, their decision's instant). Acks come in the
+    /// order of the commands.
+    unacked: VecDeque<(u64, u64)>,
     pub report: CoordinatorReport,
 }
 
@@ -317,6 +324,7 @@ impl Coordinator {
             too_fast_said_ns: None,
             unreported_in_row: 0,
             picture_delays_ns: VecDeque::new(),
+            unacked: VecDeque::new(),
             report: CoordinatorReport::default(),
         }
     }
@@ -546,6 +554,7 @@ impl Coordinator {
         };
         let extrapolated = record.pose_age_ms > 0.0;
         let what = Awaits::Decided(Box::new(record));
+        let awaited = matches!(picture, Picture::Awaited { .. });
         if extrapolated && self.locating.len() < LOCATING_MAX {
             self.wait_for_pose(&mut out, what, mono_ns, picture);
         } else {
@@ -562,6 +571,14 @@ impl Coordinator {
             };
             self.locating.insert(self.next_id, waiting);
             self.write_in_order(&mut out);
+        }
+        if awaited {
+            // Its command's answer is due; a capture whose answer never came (a lost ack)
+            // is not kept past the wait for its picture.
+            if self.unacked.len() == LOCATING_MAX {
+                self.unacked.pop_front();
+            }
+            self.unacked.push_back((self.next_id, mono_ns));
         }
         out
     }
@@ -614,10 +631,14 @@ impl Coordinator {
                 let accepted = result == MavResult::MAV_RESULT_ACCEPTED as u8;
                 if command == MavCmd::MAV_CMD_DO_SET_CAM_TRIGG_DIST as u32 {
                     self.setter.on_ack(accepted);
-                } else if !accepted {
-                    self.report.camera_command_failures += 1;
-                    let text = format!("alfd: camera command {command} refused ({result})");
-                    self.status(&mut out, MavSeverity::MAV_SEVERITY_WARNING, &text);
+                } else if result != MavResult::MAV_RESULT_IN_PROGRESS as u8 {
+                    // IN_PROGRESS is not an answer yet: the final ack follows.
+                    self.on_camera_ack(&mut out, accepted, now.mono_ns);
+                    if !accepted {
+                        self.report.camera_command_failures += 1;
+                        let text = format!("alfd: camera command {command} refused ({result})");
+                        self.status(&mut out, MavSeverity::MAV_SEVERITY_WARNING, &text);
+                    }
                 }
             }
             LinkEvent::CameraTrigger {
@@ -811,6 +832,34 @@ impl Coordinator {
             w.locate_id = id;
         }
         out.push(Action::Locate { id, mono_ns });
+    }
+
+    /// The autopilot answered the oldest camera command not answered yet. Refused, its
+    /// picture will not come: the capture is logged where it was decided now, and no report
+    /// is matched to it (the first report would otherwise go to it, the oldest waiting, and
+    /// every capture after it would take its successor's picture).
+    fn on_camera_ack(&mut self, out: &mut Vec<Action>, accepted: bool, now_ns: u64) {
+        // Commands older than the wait for a picture had their ack lost.
+        while self
+            .unacked
+            .front()
+            .is_some_and(|&(_, decided_ns)| decided_ns + PICTURE_WAIT_NS < now_ns)
+        {
+            self.unacked.pop_front();
+        }
+        let Some((key, _)) = self.unacked.pop_front() else {
+            return;
+        };
+        if accepted {
+            return;
+        }
+        if let Some(w) = self.locating.get_mut(&key) {
+            if matches!(w.picture, Picture::Awaited { .. }) {
+                w.picture = Picture::NotAwaited;
+                self.report.pictures_refused += 1;
+                self.write_in_order(out);
+            }
+        }
     }
 
     /// The captures whose wait for their picture's report is over (`until`: those due by
@@ -1700,6 +1749,85 @@ mod tests {
         let mut r = crate::capture::record::tests::sample(1);
         r.pose_age_ms = 0.0;
         assert_eq!(writes(&frame.on_decided(r)).len(), 1);
+    }
+
+    #[test]
+    fn a_refused_camera_commands_capture_takes_no_report() {
+        const MS: u64 = 1_000_000;
+        let mut co = coordinator("camera_command", 0);
+        let decide = |co: &mut Coordinator, t: u64| {
+            let mut r = crate::capture::record::tests::sample(1);
+            (r.mono_ns, r.pose_age_ms, r.image) = (t, 0.0, None);
+            r.capture_mode = CaptureMode::CameraCommand;
+            co.on_decided(r)
+        };
+        let trigger = |t: u64| LinkEvent::CameraTrigger {
+            seq: 0,
+            time_boot_us: t / 1000,
+            mono_ns: Some(t),
+        };
+        let ack = |r: MavResult| LinkEvent::CommandAck {
+            command: MavCmd::MAV_CMD_IMAGE_START_CAPTURE as u32,
+            result: r as u8,
+        };
+        for k in 0..3 {
+            decide(&mut co, S + k * 30 * MS);
+        }
+        // The camera is not ready for the first command: the autopilot says so, and that
+        // capture is logged where it was decided, at once.
+        let a = co.on_link_event(
+            ack(MavResult::MAV_RESULT_TEMPORARILY_REJECTED),
+            now(S + 10 * MS),
+        );
+        let w = writes(&a);
+        assert_eq!(w.len(), 1, "{a:?}");
+        assert_eq!(
+            (w[0].seq, w[0].mono_ns, w[0].picture_after_ms),
+            (1, S, None)
+        );
+        assert_eq!(texts(&a), ["alfd: camera command 2000 refused (1)"]);
+        // Not an answer yet: nothing happens.
+        let a = co.on_link_event(ack(MavResult::MAV_RESULT_IN_PROGRESS), now(S + 35 * MS));
+        assert!(a.is_empty(), "{a:?}");
+        for t in [40, 70] {
+            co.on_link_event(ack(MavResult::MAV_RESULT_ACCEPTED), now(S + t * MS));
+        }
+        // The second and third commands' pictures, 50 ms after each decision, are theirs: the
+        // first report does not go to the refused capture.
+        for (seq, t) in [(2, 80), (3, 110)] {
+            let a = co.on_link_event(trigger(S + t * MS), now(S + (t + 5) * MS));
+            let [(id, at)] = locates(&a)[..] else {
+                panic!("{a:?}")
+            };
+            assert_eq!(at, S + t * MS);
+            let w = writes(&co.on_located(id, located(seq as f64)));
+            assert_eq!((w[0].seq, w[0].picture_after_ms), (seq, Some(50.0)));
+        }
+        let r = &co.report;
+        assert_eq!(
+            (
+                r.pictures_refused,
+                r.camera_command_failures,
+                r.pictures_reported
+            ),
+            (1, 1, 2)
+        );
+        assert_eq!((r.pictures_unreported, r.reports_unmatched), (0, 0));
+        // A capture whose ack was lost is no longer expected to be answered once its wait
+        // is over: the next refusal is the next command's.
+        decide(&mut co, 3 * S);
+        decide(&mut co, 4 * S + 500 * MS);
+        let w = writes(&co.on_tick(
+            now(4 * S + 10 * MS),
+            StorageState::from_free_bytes(1 << 30),
+            0,
+            None,
+        ));
+        assert_eq!((w.len(), w[0].mono_ns), (1, 3 * S), "waited in vain");
+        let a = co.on_link_event(ack(MavResult::MAV_RESULT_DENIED), now(4 * S + 520 * MS));
+        let w = writes(&a);
+        assert_eq!((w.len(), w[0].mono_ns), (1, 4 * S + 500 * MS));
+        assert_eq!(co.locating(), 0);
     }
 
     #[test]

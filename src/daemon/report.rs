@@ -64,6 +64,8 @@ pub struct RunReport {
     /// logged where decided (no report within `PICTURE_WAIT_NS`), and reports no capture took.
     pub pictures_reported: u64,
     pub pictures_unreported: u64,
+    /// Of the captures logged where decided, those whose command the autopilot refused.
+    pub pictures_refused: u64,
     pub reports_unmatched: u64,
     pub tlog_frames: u64,
     pub exports: Option<ExportSummary>,
@@ -119,6 +121,12 @@ impl RunReport {
             self.pictures_unreported,
             super::coordinator::PICTURE_WAIT_NS as f64 * 1e-9,
         );
+        if self.pictures_refused > 0 {
+            s += &format!(
+                ", {} where decided as the autopilot refused their command",
+                self.pictures_refused
+            );
+        }
         if self.reports_unmatched > 0 {
             s += &format!(
                 ", {} reports of no capture's picture",
@@ -178,6 +186,7 @@ pub(crate) fn report(
         feedbacks_timed_on_arrival: c.feedbacks_timed_on_arrival,
         pictures_reported: c.pictures_reported,
         pictures_unreported: c.pictures_unreported,
+        pictures_refused: c.pictures_refused,
         reports_unmatched: c.reports_unmatched,
         link: link.health().borrow().clone(),
         statustexts: c.statustexts,
