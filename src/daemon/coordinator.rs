@@ -1656,22 +1656,29 @@ mod tests {
     /// `PICTURE_WAIT_NS`) and does not place the next one at its successor's picture. After
     /// three unreported in a row captures stop waiting, until a report comes again; the
     /// daemon's stop writes what still waits.
+    /// A `camera_command` capture decided at `t`, its pose interpolated already.
+    fn camera_decision(co: &mut Coordinator, t: u64) -> Vec<Action> {
+        let mut r = crate::capture::record::tests::sample(1);
+        (r.mono_ns, r.pose_age_ms, r.image) = (t, 0.0, None);
+        r.capture_mode = CaptureMode::CameraCommand;
+        co.on_decided(r)
+    }
+
+    /// PX4's report of a picture taken at `t`.
+    fn camera_trigger(t: u64) -> LinkEvent {
+        LinkEvent::CameraTrigger {
+            seq: 0,
+            time_boot_us: t / 1000,
+            mono_ns: Some(t),
+        }
+    }
+
     #[test]
     fn a_camera_commands_capture_is_placed_where_the_autopilot_reports_its_picture() {
         const MS: u64 = 1_000_000;
         let mut co = coordinator("camera_command", 0);
         let storage = StorageState::from_free_bytes(1 << 30);
-        let decide = |co: &mut Coordinator, t: u64| {
-            let mut r = crate::capture::record::tests::sample(1);
-            (r.mono_ns, r.pose_age_ms, r.image) = (t, 0.0, None);
-            r.capture_mode = CaptureMode::CameraCommand;
-            co.on_decided(r)
-        };
-        let trigger = |t: u64| LinkEvent::CameraTrigger {
-            seq: 0,
-            time_boot_us: t / 1000,
-            mono_ns: Some(t),
-        };
+        let (decide, trigger) = (camera_decision, camera_trigger);
         // Two decisions 30 ms apart, each picture 50 ms after its decision: the command goes
         // out, nothing is written before the picture is reported.
         let a = decide(&mut co, S);
@@ -1755,17 +1762,7 @@ mod tests {
     fn a_refused_camera_commands_capture_takes_no_report() {
         const MS: u64 = 1_000_000;
         let mut co = coordinator("camera_command", 0);
-        let decide = |co: &mut Coordinator, t: u64| {
-            let mut r = crate::capture::record::tests::sample(1);
-            (r.mono_ns, r.pose_age_ms, r.image) = (t, 0.0, None);
-            r.capture_mode = CaptureMode::CameraCommand;
-            co.on_decided(r)
-        };
-        let trigger = |t: u64| LinkEvent::CameraTrigger {
-            seq: 0,
-            time_boot_us: t / 1000,
-            mono_ns: Some(t),
-        };
+        let (decide, trigger) = (camera_decision, camera_trigger);
         let ack = |r: MavResult| LinkEvent::CommandAck {
             command: MavCmd::MAV_CMD_IMAGE_START_CAPTURE as u32,
             result: r as u8,
