@@ -43,6 +43,8 @@ pub const NAME_BOUND: &str = "ALF_BND";
 const SECOND_NS: u64 = 1_000_000_000;
 /// At most one "too fast" STATUSTEXT in this long.
 const TOO_FAST_EVERY_NS: u64 = 10_000_000_000;
+/// At most this often a STATUSTEXT says a picture's report matched no capture.
+const UNMATCHED_EVERY_NS: u64 = 10_000_000_000;
 /// `camera_command`: how long after its decision a capture waits for the autopilot to say it
 /// took the picture (CAMERA_TRIGGER, CAMERA_FEEDBACK) before it is logged where it was decided.
 pub const PICTURE_WAIT_NS: u64 = 1_000_000_000;
@@ -276,6 +278,7 @@ pub struct Coordinator {
     writing: usize,
     last_second_ns: Option<u64>,
     too_fast_said_ns: Option<u64>,
+    unmatched_said_ns: Option<u64>,
     /// `camera_command`: captures in a row whose picture the autopilot did not report, and
     /// the latest delays from a decision to its picture.
     unreported_in_row: u32,
@@ -322,6 +325,7 @@ impl Coordinator {
             writing: 0,
             last_second_ns: None,
             too_fast_said_ns: None,
+            unmatched_said_ns: None,
             unreported_in_row: 0,
             picture_delays_ns: VecDeque::new(),
             unacked: VecDeque::new(),
@@ -817,6 +821,17 @@ impl Coordinator {
             .map(|(k, w)| (*k, w.mono_ns));
         let Some((key, decided_ns)) = waiting else {
             self.report.reports_unmatched += 1;
+            // A picture alfd did not command (the autopilot's own distance or time trigger
+            // left on, a ground station's photo), or one reported after its capture stopped
+            // waiting: the operator hears of it in flight, at most every 10 s.
+            if self
+                .unmatched_said_ns
+                .is_none_or(|t| mono_ns >= t + UNMATCHED_EVERY_NS)
+            {
+                self.unmatched_said_ns = Some(mono_ns);
+                let text = "alfd: picture report matched no capture";
+                self.status(out, MavSeverity::MAV_SEVERITY_WARNING, text);
+            }
             return;
         };
         if self.picture_delays_ns.len() == PICTURE_DELAYS_KEPT {
@@ -1740,9 +1755,13 @@ mod tests {
         assert_eq!(said, ["alfd: no picture reports: logged where decided"]);
         assert_eq!(writes(&decide(&mut co, 10 * S)).len(), 1, "written at once");
         assert_eq!(co.next_due_ns(), None);
-        // A report again (of no capture waiting): the next capture waits.
-        assert!(locates(&co.on_link_event(trigger(11 * S), now(11 * S))).is_empty());
-        assert_eq!(co.report.reports_unmatched, 1);
+        // A report again (of no capture waiting): the next capture waits. The operator hears
+        // of a report that matched no capture, once in 10 s.
+        let a = co.on_link_event(trigger(11 * S), now(11 * S));
+        assert!(locates(&a).is_empty());
+        assert_eq!(texts(&a), ["alfd: picture report matched no capture"]);
+        assert!(texts(&co.on_link_event(trigger(11 * S + S / 2), now(11 * S))).is_empty());
+        assert_eq!(co.report.reports_unmatched, 2);
         assert!(writes(&decide(&mut co, 12 * S)).is_empty());
         // The stop: no report will be read, the capture is written as decided.
         let w = writes(&co.stop_awaiting_pictures());
