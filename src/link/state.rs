@@ -571,6 +571,9 @@ impl Tracker {
                     mono_ns: self.sync.remote_to_local(c.time_usec.saturating_mul(1000)),
                 }));
             }
+            // Only answers to alfd's own commands (target fields 0 when the autopilot leaves
+            // the extension out): a ground station's photo command is answered too, on a
+            // link alfd may hear, and must not be taken for one of alfd's captures.
             MavMessage::COMMAND_ACK(a)
                 if from_autopilot
                     && matches!(
@@ -578,7 +581,9 @@ impl Tracker {
                         MavCmd::MAV_CMD_DO_SET_CAM_TRIGG_DIST
                             | MavCmd::MAV_CMD_IMAGE_START_CAPTURE
                             | MavCmd::MAV_CMD_DO_DIGICAM_CONTROL
-                    ) =>
+                    )
+                    && (a.target_system == 0 || a.target_system == self.cfg.system_id)
+                    && (a.target_component == 0 || a.target_component == self.cfg.component_id) =>
             {
                 out.push(Reaction::Event(LinkEvent::CommandAck {
                     command: a.command as u32,
@@ -1384,6 +1389,37 @@ mod origin_tests {
                 ..
             })]
         ));
+    }
+
+    /// The autopilot's answer to a camera command is passed on when it is addressed to alfd
+    /// (or to nobody: the extension left out), not when it answers a ground station.
+    #[test]
+    fn only_answers_to_alfds_camera_commands_are_passed_on() {
+        let mut t = synced(true);
+        let (sys, comp) = (t.cfg.system_id, t.cfg.component_id);
+        for ((target_system, target_component), ours) in [
+            ((0, 0), true),
+            ((sys, comp), true),
+            ((255, 190), false),
+            ((sys, 1), false),
+        ] {
+            let ack = MavMessage::COMMAND_ACK(COMMAND_ACK_DATA {
+                command: MavCmd::MAV_CMD_IMAGE_START_CAPTURE,
+                result: MavResult::MAV_RESULT_DENIED,
+                target_system,
+                target_component,
+                ..Default::default()
+            });
+            let got = feed(&mut t, &ack, 2_000);
+            let passed = matches!(
+                got.as_slice(),
+                [Reaction::Event(LinkEvent::CommandAck { .. })]
+            );
+            assert_eq!(
+                passed, ours,
+                "to ({target_system}, {target_component}): {got:?}"
+            );
+        }
     }
 
     /// A feedback's GPS time stamp is mapped through SYSTEM_TIME and TIMESYNC onto this
