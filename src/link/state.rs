@@ -466,9 +466,7 @@ impl Tracker {
                 // Only the autopilot's own answer, addressed to us (target fields 0 when the
                 // sender leaves the extension out): ArduPilot forwards our requests to its
                 // ground stations, and one that answers them must not move our clock.
-                let for_us = (t.target_system == 0 || t.target_system == self.cfg.system_id)
-                    && (t.target_component == 0 || t.target_component == self.cfg.component_id);
-                if !from_autopilot || !for_us {
+                if !from_autopilot || !self.for_us(t.target_system, t.target_component) {
                     self.health.timesync_foreign += 1;
                     return out;
                 }
@@ -543,9 +541,11 @@ impl Tracker {
                 }
             }
             // Acks come in the order of the requests. LOCAL_POSITION_NED is optional:
-            // refused, it is not asked again.
+            // refused, it is not asked again. Only answers to the link's own requests count:
+            // a ground station's are answered on links alfd may hear.
             MavMessage::COMMAND_ACK(a)
                 if from_autopilot
+                    && self.for_us(a.target_system, a.target_component)
                     && a.command == MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL
                     && (a.result == MavResult::MAV_RESULT_ACCEPTED
                         || self.pending_rates.front() == Some(&32)) =>
@@ -556,6 +556,7 @@ impl Tracker {
             // The link's only REQUEST_MESSAGE to the autopilot is for the origin.
             MavMessage::COMMAND_ACK(a)
                 if from_autopilot
+                    && self.for_us(a.target_system, a.target_component)
                     && a.command == MavCmd::MAV_CMD_REQUEST_MESSAGE
                     && matches!(
                         a.result,
@@ -582,8 +583,7 @@ impl Tracker {
                             | MavCmd::MAV_CMD_IMAGE_START_CAPTURE
                             | MavCmd::MAV_CMD_DO_DIGICAM_CONTROL
                     )
-                    && (a.target_system == 0 || a.target_system == self.cfg.system_id)
-                    && (a.target_component == 0 || a.target_component == self.cfg.component_id) =>
+                    && self.for_us(a.target_system, a.target_component) =>
             {
                 out.push(Reaction::Event(LinkEvent::CommandAck {
                     command: a.command as u32,
@@ -603,6 +603,13 @@ impl Tracker {
             && self.autopilot.is_none_or(|(s, _)| u32::from(s) == sysid)
     }
 
+    /// Whether a message's target fields name alfd, all of its system's components, or nobody
+    /// (0: a sender that leaves the MAVLink 2 extension out).
+    fn for_us(&self, target_system: u8, target_component: u8) -> bool {
+        (target_system == 0 || target_system == self.cfg.system_id)
+            && (target_component == 0 || target_component == self.cfg.component_id)
+    }
+
     /// A COMMAND_LONG addressed to our component (or to all of our system's, or broadcast), as
     /// an event. Broadcast matters: ArduPilot's MAVLinkCamV2 backend sent IMAGE_START_CAPTURE
     /// with target 0/0 on the camera's link before it filled in the target (docs/link.md).
@@ -610,17 +617,16 @@ impl Tracker {
         let MavMessage::COMMAND_LONG(c) = msg else {
             return None;
         };
-        let ours = (c.target_system == self.cfg.system_id || c.target_system == 0)
-            && (c.target_component == self.cfg.component_id || c.target_component == 0);
-        ours.then_some(LinkEvent::Command {
-            system_id: h.system_id as u8,
-            component_id: h.component_id,
-            command: c.command as u32,
-            params: [
-                c.param1, c.param2, c.param3, c.param4, c.param5, c.param6, c.param7,
-            ],
-            trust,
-        })
+        self.for_us(c.target_system, c.target_component)
+            .then_some(LinkEvent::Command {
+                system_id: h.system_id as u8,
+                component_id: h.component_id,
+                command: c.command as u32,
+                params: [
+                    c.param1, c.param2, c.param3, c.param4, c.param5, c.param6, c.param7,
+                ],
+                trust,
+            })
     }
 
     fn on_attitude(&mut self, boot_ms: u32, q: DQuat, rates: DVec3, out: &mut Vec<Reaction>) {
@@ -1199,6 +1205,16 @@ mod origin_tests {
         feed(&mut t, &position(2_100, 5.0, 0.0, 0.0, false), 2_100);
         assert!(t.anchor().is_none());
         // An autopilot that does not answer REQUEST_MESSAGE is not asked again.
+        assert!(t.wants_origin());
+        // A ground station's request refused is not the link's.
+        let refused_to_gcs = MavMessage::COMMAND_ACK(COMMAND_ACK_DATA {
+            command: MavCmd::MAV_CMD_REQUEST_MESSAGE,
+            result: MavResult::MAV_RESULT_UNSUPPORTED,
+            target_system: 255,
+            target_component: 190,
+            ..Default::default()
+        });
+        feed(&mut t, &refused_to_gcs, 2_110);
         assert!(t.wants_origin());
         let refused = MavMessage::COMMAND_ACK(COMMAND_ACK_DATA {
             command: MavCmd::MAV_CMD_REQUEST_MESSAGE,
