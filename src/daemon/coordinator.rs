@@ -467,11 +467,7 @@ impl Coordinator {
         // targets the operator set: said when it starts, at most every 10 s.
         let floored = e.floor_over_permissible();
         if let Some((chosen, permissible)) = floored.filter(|_| !self.floored) {
-            if self
-                .floor_said_ns
-                .is_none_or(|t| mono >= t + 10_000_000_000)
-            {
-                self.floor_said_ns = Some(mono);
+            if due_every(&mut self.floor_said_ns, mono, 10_000_000_000) {
                 let text = format!(
                     "alfd: sampling.spacing_min_m {chosen:.2} m is over the permissible {permissible:.3} m: targets not met"
                 );
@@ -824,11 +820,7 @@ impl Coordinator {
             // A picture alfd did not command (the autopilot's own distance or time trigger
             // left on, a ground station's photo), or one reported after its capture stopped
             // waiting: the operator hears of it in flight, at most every 10 s.
-            if self
-                .unmatched_said_ns
-                .is_none_or(|t| mono_ns >= t + UNMATCHED_EVERY_NS)
-            {
-                self.unmatched_said_ns = Some(mono_ns);
+            if due_every(&mut self.unmatched_said_ns, mono_ns, UNMATCHED_EVERY_NS) {
                 let text = "alfd: picture report matched no capture";
                 self.status(out, MavSeverity::MAV_SEVERITY_WARNING, text);
             }
@@ -1187,11 +1179,9 @@ impl Coordinator {
                 out.push(send(m));
             }
             let fast = ground_speed_mps.filter(|v| *v > vmax * (1.0 + 1e-6));
-            let quiet = self
-                .too_fast_said_ns
-                .is_none_or(|t| now.mono_ns >= t + TOO_FAST_EVERY_NS);
-            if let (Some(v), true) = (fast, quiet) {
-                self.too_fast_said_ns = Some(now.mono_ns);
+            if let Some(v) = fast
+                .filter(|_| due_every(&mut self.too_fast_said_ns, now.mono_ns, TOO_FAST_EVERY_NS))
+            {
                 // One STATUSTEXT chunk (50 bytes): ground stations show it whole.
                 let text = format!("alfd: too fast: {v:.1} m/s, max {vmax:.1} m/s at {s:.1} m");
                 self.status(&mut out, MavSeverity::MAV_SEVERITY_WARNING, &text);
@@ -1234,6 +1224,16 @@ impl Coordinator {
                 .map(send),
         );
     }
+}
+
+/// Whether a message said at most every `every_ns` may be said at `now_ns` (never said yet, or
+/// that long ago); if so, it counts as said now.
+fn due_every(said_ns: &mut Option<u64>, now_ns: u64, every_ns: u64) -> bool {
+    let due = said_ns.is_none_or(|t| now_ns >= t + every_ns);
+    if due {
+        *said_ns = Some(now_ns);
+    }
+    due
 }
 
 /// The horizontal way from `from` (north, east) to the pose, metres; `None` without `from`.
