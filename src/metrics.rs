@@ -68,83 +68,112 @@ impl SsimMap {
 /// The per-window SSIM of `a` against `b` ([`ssim`] is its mean); `None` for
 /// images smaller than the window.
 pub fn ssim_map(a: &[f32], b: &[f32], width: usize, height: usize, peak: f64) -> Option<SsimMap> {
-    assert_eq!(a.len(), width * height);
+    ssim_maps([a], b, width, height, peak).map(|[m]| m)
+}
+
+/// [`ssim_map`] of each of `a` against the same `b`, the same bits: `b`'s own moments are
+/// made once (two of the five planes of each map).
+pub fn ssim_maps<const N: usize>(
+    a: [&[f32]; N],
+    b: &[f32],
+    width: usize,
+    height: usize,
+    peak: f64,
+) -> Option<[SsimMap; N]> {
+    for x in a {
+        assert_eq!(x.len(), width * height);
+    }
     assert_eq!(b.len(), width * height);
     if width < SSIM_WINDOW || height < SSIM_WINDOW {
         return None;
     }
     let c1 = (SSIM_K1 * peak).powi(2);
     let c2 = (SSIM_K2 * peak).powi(2);
-    let ow = width - SSIM_WINDOW + 1;
-    // Horizontal pass of the five moments, then vertical, in f64. Each moment
-    // is its own plane and each tap a pass over a whole line, so the inner
-    // loops run over contiguous values and vectorise; every output still sums
-    // its taps in the same order from zero, so the values are the same bits
-    // as one window at a time.
-    HORIZONTAL.with_borrow_mut(|scratch| {
-        scratch.clear();
-        scratch.resize(5 * ow * height, 0.0);
-        let planes = scratch.chunks_exact_mut(ow * height);
-        let hz: [&mut [f64]; 5] = planes.collect::<Vec<_>>().try_into().expect("five planes");
-        moments_map(a, b, width, height, hz, c1, c2)
-    })
+    Some(MOMENTS.with_borrow_mut(|scratch| moments_maps(a, b, width, height, scratch, c1, c2)))
 }
 
 thread_local! {
-    /// [`ssim_map`]'s horizontal planes, kept between calls: five planes of a
-    /// frame's size freshly allocated for every map were returned to the
-    /// system and faulted in again each time (`alfd eval` scores thousands).
-    static HORIZONTAL: std::cell::RefCell<Vec<f64>> = const { std::cell::RefCell::new(Vec::new()) };
+    /// [`ssim_maps`]'s working lines, kept between calls (`alfd eval` scores thousands of
+    /// maps; freshly allocated, their pages were faulted in again each time).
+    static MOMENTS: std::cell::RefCell<Vec<f64>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
-/// [`ssim_map`] on its zeroed horizontal planes.
-fn moments_map(
-    a: &[f32],
+/// The moments, horizontal pass then vertical, in f64: `b`'s mean and mean square, and each
+/// `a`'s mean, mean square and product with `b`. Each moment is its own line and each tap a
+/// pass over a whole line, so the inner loops run over contiguous values and vectorise; every
+/// output sums its taps in the same order from zero, so the values are the same bits as one
+/// window at a time. Only the last `SSIM_WINDOW` rows of the horizontal pass are kept (a
+/// ring): a vertical window needs no more, and the whole planes did not stay in cache.
+fn moments_maps<const N: usize>(
+    a: [&[f32]; N],
     b: &[f32],
     width: usize,
     height: usize,
-    mut hz: [&mut [f64]; 5],
+    scratch: &mut Vec<f64>,
     c1: f64,
     c2: f64,
-) -> Option<SsimMap> {
+) -> [SsimMap; N] {
     let g = gaussian_window();
     let ow = width - SSIM_WINDOW + 1;
     let oh = height - SSIM_WINDOW + 1;
+    // Moment lines: 0 `b`, 1 `b²`, then per `a` (`2 + 3n`): `a`, `a²`, `a·b`; a ring of
+    // `SSIM_WINDOW` horizontal rows, then one vertical row.
+    let planes = 2 + 3 * N;
+    let ring_len = planes * ow * SSIM_WINDOW;
+    scratch.clear();
+    scratch.resize(ring_len + planes * ow, 0.0);
+    let (ring, vertical) = scratch.split_at_mut(ring_len);
+    let mut values: [Vec<f64>; N] = std::array::from_fn(|_| Vec::with_capacity(ow * oh));
     for r in 0..height {
-        let ra = &a[r * width..(r + 1) * width];
+        // Horizontal: row `r` into its slot of the ring, from zero.
+        let slot = &mut ring[(r % SSIM_WINDOW) * planes * ow..][..planes * ow];
+        slot.fill(0.0);
+        let (hb, ha) = slot.split_at_mut(2 * ow);
+        let (h0, h1) = hb.split_at_mut(ow);
         let rb = &b[r * width..(r + 1) * width];
-        let [h0, h1, h2, h3, h4] = hz.each_mut().map(|p| &mut p[r * ow..(r + 1) * ow]);
         for (k, &gk) in g.iter().enumerate() {
-            let (xs, ys) = (&ra[k..k + ow], &rb[k..k + ow]);
+            let ys = &rb[k..k + ow];
             for c in 0..ow {
-                let (x, y) = (xs[c] as f64, ys[c] as f64);
-                h0[c] += gk * x;
-                h1[c] += gk * y;
-                h2[c] += gk * x * x;
-                h3[c] += gk * y * y;
-                h4[c] += gk * x * y;
+                let y = ys[c] as f64;
+                h0[c] += gk * y;
+                h1[c] += gk * y * y;
             }
         }
-    }
-    let mut values = Vec::with_capacity(ow * oh);
-    let mut m = [(); 5].map(|_| vec![0f64; ow]);
-    for r in 0..oh {
-        for plane in &mut m {
-            plane.fill(0.0);
-        }
-        for (k, &gk) in g.iter().enumerate() {
-            for (acc, h) in m.iter_mut().zip(&hz) {
-                let line = &h[(r + k) * ow..(r + k + 1) * ow];
-                for (o, &v) in acc.iter_mut().zip(line) {
-                    *o += gk * v;
+        for (x_img, hx) in a.iter().zip(ha.chunks_exact_mut(3 * ow)) {
+            let ra = &x_img[r * width..(r + 1) * width];
+            let (hm, rest) = hx.split_at_mut(ow);
+            let (hsq, hxy) = rest.split_at_mut(ow);
+            for (k, &gk) in g.iter().enumerate() {
+                let (xs, ys) = (&ra[k..k + ow], &rb[k..k + ow]);
+                for c in 0..ow {
+                    let (x, y) = (xs[c] as f64, ys[c] as f64);
+                    hm[c] += gk * x;
+                    hsq[c] += gk * x * x;
+                    hxy[c] += gk * x * y;
                 }
             }
         }
-        values.extend(
-            (0..ow).map(|c| ssim_of_moments([m[0][c], m[1][c], m[2][c], m[3][c], m[4][c]], c1, c2)),
-        );
+        // Vertical: once the ring holds the window's rows, output row `r + 1 - SSIM_WINDOW`.
+        let Some(out_r) = (r + 1).checked_sub(SSIM_WINDOW) else {
+            continue;
+        };
+        vertical.fill(0.0);
+        for (k, &gk) in g.iter().enumerate() {
+            let src = &ring[((out_r + k) % SSIM_WINDOW) * planes * ow..][..planes * ow];
+            for (o, &v) in vertical.iter_mut().zip(src) {
+                *o += gk * v;
+            }
+        }
+        let (mb, mb2) = (&vertical[..ow], &vertical[ow..2 * ow]);
+        for (n, out) in values.iter_mut().enumerate() {
+            let m = &vertical[(2 + 3 * n) * ow..(5 + 3 * n) * ow];
+            let (mx, mxx, mxy) = (&m[..ow], &m[ow..2 * ow], &m[2 * ow..]);
+            out.extend(
+                (0..ow).map(|c| ssim_of_moments([mx[c], mb[c], mxx[c], mb2[c], mxy[c]], c1, c2)),
+            );
+        }
     }
-    Some(SsimMap {
+    values.map(|values| SsimMap {
         values,
         width: ow,
         height: oh,
@@ -219,5 +248,10 @@ mod tests {
         assert_eq!((got.width, got.height), (w - 10, h - 10));
         let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         assert_eq!(bits(&got.values), bits(&want));
+        // Two images against one: each map as it is alone.
+        let c: Vec<f32> = b.iter().map(|&x| 1.0 - x * next()).collect();
+        let [mb, mc] = ssim_maps([&b, &c], &a, w, h, 1.0).unwrap();
+        assert_eq!(bits(&mb.values), bits(&ssim_map_by_window(&b, &a, w, h)));
+        assert_eq!(bits(&mc.values), bits(&ssim_map_by_window(&c, &a, w, h)));
     }
 }

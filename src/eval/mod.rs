@@ -15,7 +15,7 @@ pub mod truth;
 
 use crate::core::closedloop;
 use crate::core::{Estimate, Estimator, EstimatorParams, Model};
-use crate::metrics::{psnr, ssim_map};
+use crate::metrics::{psnr, ssim_maps};
 use crate::render::{render, survey_camera, RenderOptions, SensorModel};
 use crate::scene::{Scene, SceneError};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -587,10 +587,7 @@ fn score_view(
     let w = w_opt(est, i, j);
     let target = &views[k];
     let x = target.x_m;
-    let images = [
-        recon::lightfield(g, &views[i], &views[j], x, w),
-        recon::warp(g, &views[i], &views[j], x, w),
-    ];
+    let images = recon::both(g, &views[i], &views[j], x, w);
     let c = truth.classify(target, &views[i], &views[j], false);
     let mut sc = Score {
         psnr_db: [f64::NAN; 2],
@@ -600,6 +597,17 @@ fn score_view(
         class_windows: [0; 3],
         geo: Geo::of(&c),
     };
+    let maps = if with_ssim {
+        ssim_maps(
+            [&images[0], &images[1]],
+            &target.lum,
+            g.width,
+            g.height,
+            1.0,
+        )
+    } else {
+        None
+    };
     for (r, img) in images.iter().enumerate() {
         sc.psnr_db[r] = psnr(img, &target.lum, 1.0).min(PSNR_CAP_DB);
         let mut sums = ClassSums::default();
@@ -608,26 +616,24 @@ fn score_view(
             sums.add(c.class[p], d * d);
         }
         sc.class_sq[r] = sums.0;
-        if with_ssim {
-            if let Some(map) = ssim_map(img, &target.lum, g.width, g.height, 1.0) {
-                sc.ssim[r] = map.mean();
-                let half = crate::metrics::SSIM_WINDOW / 2;
-                let mut sums = ClassSums::default();
-                let mut windows = [0usize; 3];
-                for mr in 0..map.height {
-                    let classes = &c.class[(mr + half) * g.width + half..][..map.width];
-                    let values = &map.values[mr * map.width..][..map.width];
-                    for (&cl, &v) in classes.iter().zip(values) {
-                        sums.add(cl, v);
-                        if let Some(n) = windows.get_mut(cl as usize) {
-                            *n += 1;
-                        }
+        if let Some(map) = maps.as_ref().map(|m| &m[r]) {
+            sc.ssim[r] = map.mean();
+            let half = crate::metrics::SSIM_WINDOW / 2;
+            let mut sums = ClassSums::default();
+            let mut windows = [0usize; 3];
+            for mr in 0..map.height {
+                let classes = &c.class[(mr + half) * g.width + half..][..map.width];
+                let values = &map.values[mr * map.width..][..map.width];
+                for (&cl, &v) in classes.iter().zip(values) {
+                    sums.add(cl, v);
+                    if let Some(n) = windows.get_mut(cl as usize) {
+                        *n += 1;
                     }
                 }
-                sc.class_ssim[r] = sums.0;
-                if r == 0 {
-                    sc.class_windows = windows;
-                }
+            }
+            sc.class_ssim[r] = sums.0;
+            if r == 0 {
+                sc.class_windows = windows;
             }
         }
     }

@@ -210,14 +210,7 @@ fn weight_a(a: &View, b: &View, x_t: f64) -> f32 {
 
 /// (a) Light-field rendering through the plane at inverse depth `w_opt_per_m`.
 pub fn lightfield(g: &Geometry, a: &View, b: &View, x_t: f64, w_opt_per_m: f64) -> Vec<f32> {
-    let plane = Plane::new(g, a, b, x_t, w_opt_per_m);
-    let mut out = vec![0f32; g.width * g.height];
-    for r in 0..g.height {
-        for i in 0..g.width {
-            out[r * g.width + i] = plane.px(g, i, r);
-        }
-    }
-    out
+    Plane::new(g, a, b, x_t, w_opt_per_m).render(g)
 }
 
 /// [`lightfield`]'s plane seen from its two captures. The plane lies at one depth and the
@@ -282,28 +275,122 @@ impl<'a> Plane<'a> {
         }
     }
 
-    /// Pixel `(i, r)` of the rendering.
-    #[inline]
-    fn px(&self, g: &Geometry, i: usize, r: usize) -> f32 {
-        let sample = |s: &PlaneSide| {
-            let (cols, rows) = s.axes.as_ref()?;
-            let ((c_in, c), (r_in, rt)) = (cols[i], rows[r]);
-            (c_in && r_in).then(|| g.sample_taps(&s.view.lum, c, rt))
-        };
+    /// The rendering, row by row. A pixel is each capture's bicubic sample where the plane
+    /// lands within it, blended by distance; off both, the nearer capture's sample clamped at
+    /// its border (its own pixel where the plane is behind it).
+    fn render(&self, g: &Geometry) -> Vec<f32> {
+        let w = g.width;
+        let mut out = vec![0f32; w * g.height];
+        let (mut a, mut b) = (SideRows::new(g, &self.a), SideRows::new(g, &self.b));
         let wa = self.wa;
-        match (sample(&self.a), sample(&self.b)) {
-            (Some(va), Some(vb)) => wa * va + (1.0 - wa) * vb,
-            (Some(va), None) => va,
-            (None, Some(vb)) => vb,
-            (None, None) => {
-                // Off both frames: the nearer capture, clamped at its border.
-                let s = if wa >= 0.5 { &self.a } else { &self.b };
-                match &s.axes {
-                    Some((cols, rows)) => g.sample_taps(&s.view.lum, cols[i].1, rows[r].1),
-                    None => s.view.lum[r * g.width + i],
-                }
+        let nearer_is_a = wa >= 0.5;
+        for (r, line) in out.chunks_exact_mut(w).enumerate() {
+            let (va, a_row) = a.row(g, r);
+            let (vb, b_row) = b.row(g, r);
+            let a_cols = self.a.axes.as_ref().map(|(cols, _)| cols.as_slice());
+            let b_cols = self.b.axes.as_ref().map(|(cols, _)| cols.as_slice());
+            let nearer = if nearer_is_a {
+                (va, &self.a)
+            } else {
+                (vb, &self.b)
+            };
+            for (i, o) in line.iter_mut().enumerate() {
+                let in_a = a_row && a_cols.is_some_and(|c| c[i].0);
+                let in_b = b_row && b_cols.is_some_and(|c| c[i].0);
+                *o = match (in_a, in_b) {
+                    (true, true) => wa * va[i] + (1.0 - wa) * vb[i],
+                    (true, false) => va[i],
+                    (false, true) => vb[i],
+                    (false, false) => match nearer.1.axes {
+                        Some(_) => nearer.0[i],
+                        None => nearer.1.view.lum[r * w + i],
+                    },
+                };
             }
         }
+        out
+    }
+}
+
+/// One capture's bicubic samples of the plane, a target row at a time. Every target row
+/// samples the same four capture rows, each at the target columns' taps: the taps' sum along
+/// each capture row ([`Geometry::sample_taps`]'s inner sums, the same operations in the same
+/// order) is made once per capture row and kept, so a target row is four products per pixel
+/// where per-pixel sampling made twenty, and neighbouring target rows share their capture
+/// rows.
+struct SideRows<'a> {
+    lum: &'a [f32],
+    /// Per target column: the four capture columns (clamped to the image) and their weights.
+    cols: Vec<([usize; 4], [f32; 4])>,
+    rows: &'a [AxisTap],
+    /// The sums along capture row `k`, at `k * width`, once `summed[k]`.
+    sums: Vec<f32>,
+    summed: Vec<bool>,
+    /// The current target row's samples.
+    out: Vec<f32>,
+}
+
+impl<'a> SideRows<'a> {
+    fn new(g: &Geometry, side: &'a PlaneSide) -> SideRows<'a> {
+        let Some((cols, rows)) = side.axes.as_ref() else {
+            return SideRows {
+                lum: &[],
+                cols: Vec::new(),
+                rows: &[],
+                sums: Vec::new(),
+                summed: Vec::new(),
+                out: Vec::new(),
+            };
+        };
+        let last = g.width as i64 - 1;
+        SideRows {
+            lum: &side.view.lum,
+            cols: cols
+                .iter()
+                .map(|(_, t)| {
+                    let idx = [0, 1, 2, 3].map(|d| (t.first + d - 1).clamp(0, last) as usize);
+                    (idx, t.weights)
+                })
+                .collect(),
+            rows,
+            sums: vec![0f32; g.width * g.height],
+            summed: vec![false; g.height],
+            out: vec![0f32; g.width],
+        }
+    }
+
+    /// Target row `r`'s samples (at every column, in range or not) and whether the row lands
+    /// within the capture's rows; nothing for a capture the plane is behind.
+    fn row(&mut self, g: &Geometry, r: usize) -> (&[f32], bool) {
+        let Some(&(r_in, rt)) = self.rows.get(r) else {
+            return (&[], false);
+        };
+        let (w, last) = (g.width, g.height as i64 - 1);
+        let src = [0, 1, 2, 3].map(|d| (rt.first + d - 1).clamp(0, last) as usize);
+        for &k in &src {
+            if !self.summed[k] {
+                let line = &self.lum[k * w..(k + 1) * w];
+                for ((idx, wx), s) in self.cols.iter().zip(&mut self.sums[k * w..(k + 1) * w]) {
+                    let mut acc = 0f32;
+                    for (&c, &wc) in idx.iter().zip(wx) {
+                        acc += wc * line[c];
+                    }
+                    *s = acc;
+                }
+                self.summed[k] = true;
+            }
+        }
+        let [s0, s1, s2, s3] = src.map(|k| &self.sums[k * w..(k + 1) * w]);
+        let [w0, w1, w2, w3] = rt.weights;
+        for (i, o) in self.out.iter_mut().enumerate() {
+            let mut acc = 0f32;
+            acc += w0 * s0[i];
+            acc += w1 * s1[i];
+            acc += w2 * s2[i];
+            acc += w3 * s3[i];
+            *o = acc;
+        }
+        (&self.out, r_in)
     }
 }
 
@@ -411,20 +498,26 @@ thread_local! {
 
 /// (b) Depth-aided warping; pixels neither neighbour sees fall back to (a).
 pub fn warp(g: &Geometry, a: &View, b: &View, x_t: f64, w_opt_per_m: f64) -> Vec<f32> {
+    let [_, warped] = both(g, a, b, x_t, w_opt_per_m);
+    warped
+}
+
+/// Both renderings, `[(a), (b)]`: the warp's fallback is the light field already made.
+pub fn both(g: &Geometry, a: &View, b: &View, x_t: f64, w_opt_per_m: f64) -> [Vec<f32>; 2] {
+    let field = lightfield(g, a, b, x_t, w_opt_per_m);
     let (la, va) = warp_one(g, a, x_t);
     let (lb, vb) = warp_one(g, b, x_t);
     let wa = weight_a(a, b, x_t);
-    let plane = Plane::new(g, a, b, x_t, w_opt_per_m);
     let mut out = vec![0f32; g.width * g.height];
     for (k, o) in out.iter_mut().enumerate() {
         *o = match (va[k], vb[k]) {
             (true, true) => wa * la[k] + (1.0 - wa) * lb[k],
             (true, false) => la[k],
             (false, true) => lb[k],
-            (false, false) => plane.px(g, k % g.width, k / g.width),
+            (false, false) => field[k],
         };
     }
-    out
+    [field, out]
 }
 
 #[cfg(test)]
