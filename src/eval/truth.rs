@@ -54,7 +54,7 @@ pub const CLASS_NAMES: [&str; 3] = ["both", "one", "neither"];
 /// point: the closed loop's (`core::closedloop`), so truth and prediction
 /// measure the same quantity.
 pub use crate::core::closedloop::PARALLAX_PERCENTILES;
-use crate::core::closedloop::{seen_tolerance_m as tolerance_m, span};
+use crate::core::closedloop::{seen_tolerance_m as tolerance_m, span_of};
 
 /// Which captures see each pixel of an in-between view, and the parallax
 /// between the captures.
@@ -299,7 +299,8 @@ impl<'a> Truth<'a> {
                 };
                 if c == BOTH {
                     let (dc, dr) = (at[0].0 - at[1].0, at[0].1 - at[1].1);
-                    disparities.push((dc * dc + dr * dr).sqrt());
+                    // Squared: the span takes the root of the two it selects.
+                    disparities.push(dc * dc + dr * dr);
                 }
                 class[k] = c;
                 counts[c as usize] += 1;
@@ -309,7 +310,7 @@ impl<'a> Truth<'a> {
             class,
             counts,
             // Selection, O(n): this runs for every view of every sweep.
-            parallax_span_px: span(&mut disparities),
+            parallax_span_px: span_of(&mut disparities, f64::sqrt),
             exact_tests,
         }
     }

@@ -297,6 +297,14 @@ pub fn pair(a: &View, b: &View) -> Pair {
 /// The robust span of `d` ([`PARALLAX_PERCENTILES`]) by selection, O(n);
 /// `None` when empty. Reorders `d`.
 pub fn span(d: &mut [f64]) -> Option<f64> {
+    span_of(d, |x| x)
+}
+
+/// [`span`] of `f(d)` for a non-decreasing `f`, applied to the two selected
+/// values only: the `k`-th smallest of `f(d)` is `f` of the `k`-th smallest of
+/// `d`, so the span has the same bits as `f` applied to every value (a square
+/// root per sample, when `d` holds squared distances).
+pub fn span_of(d: &mut [f64], f: impl Fn(f64) -> f64) -> Option<f64> {
     if d.is_empty() {
         return None;
     }
@@ -307,7 +315,7 @@ pub fn span(d: &mut [f64]) -> Option<f64> {
     let q_lo = *d[..=hi]
         .select_nth_unstable_by(lo.min(hi), f64::total_cmp)
         .1;
-    Some(q_hi - q_lo)
+    Some(f(q_hi) - f(q_lo))
 }
 
 /// Fraction of `mid`'s surface samples inside at least one of `a`, `b` that
@@ -465,6 +473,34 @@ mod tests {
 
     fn metres(w: usize, h: usize, d: Vec<f32>) -> DepthImage {
         DepthImage::new(w, h, DepthData::Metres(d)).unwrap()
+    }
+
+    #[test]
+    fn the_span_of_squares_rooted_is_the_span_of_roots() {
+        let mut s = 3u64;
+        for n in [1usize, 2, 3, 10, 201, 1000] {
+            let mut sq: Vec<f64> = (0..n)
+                .map(|k| {
+                    s = s
+                        .wrapping_mul(6364136223846793005)
+                        .wrapping_add(1442695040888963407);
+                    // Pairs of whole pixel offsets (ties) and fractional ones.
+                    let (dc, dr) = if k % 3 == 0 {
+                        ((s >> 60) as f64, (s >> 58 & 3) as f64)
+                    } else {
+                        (
+                            (s >> 11) as f64 / (1u64 << 49) as f64,
+                            (s & 0xffff) as f64 / 977.0,
+                        )
+                    };
+                    dc * dc + dr * dr
+                })
+                .collect();
+            let mut roots: Vec<f64> = sq.iter().map(|x| x.sqrt()).collect();
+            let want = span(&mut roots).map(f64::to_bits);
+            assert_eq!(span_of(&mut sq, f64::sqrt).map(f64::to_bits), want, "{n}");
+        }
+        assert_eq!(span_of(&mut [], f64::sqrt), None);
     }
 
     #[test]
