@@ -119,6 +119,24 @@ fn eval_writes_report_json_and_plots() {
                 "{k}: {u}"
             );
         }
+        // Where the truth's unseen fraction first exceeds its target: over the target there,
+        // beyond the last spacing within it, the loops' predictions fractions.
+        let ex = &seg["unseen_fraction_where_exceeded"];
+        if !ex.is_null() {
+            let truth = ex["truth"].as_f64().unwrap();
+            assert!(truth > 0.002 && truth <= 1.0, "{ex}");
+            let at = ex["spacing_m"].as_f64().unwrap();
+            if let Some(within) = seg["empirical_m"]["unseen"].as_f64() {
+                assert!(at > within, "{at} not beyond {within}");
+            }
+            for k in ["open_loop", "closed_loop"] {
+                let u = &ex[k];
+                assert!(
+                    u.is_null() || (0.0..=1.0).contains(&u.as_f64().unwrap()),
+                    "{k}: {u}"
+                );
+            }
+        }
         for k in ["predicted", "truth"] {
             let u = &seg["unseen_fraction"][k];
             assert!(
@@ -191,6 +209,81 @@ fn eval_writes_report_json_and_plots() {
     ] {
         assert!(md.contains(section), "report lacks {section}");
     }
+}
+
+/// A street a metre wide between two blocks 18 m tall, flown across 7 m above their roofs: its
+/// floor is seen from about a metre of the line, so the unseen fraction exceeds its target
+/// within the sweep (at 1.8 m, on the segment over the street).
+const STREET: &str = r#"name = "street"
+description = "a narrow street between two tall blocks"
+[survey]
+altitude_m = 25.0
+speed_mps = 5.0
+pitch_deg = 0.0
+hfov_deg = 69.0
+width = 160
+height = 120
+start_x_m = -6.0
+end_x_m = 6.0
+view_step_m = 0.2
+[ground]
+texture = { colour = [0.4, 0.5, 0.3], contrast = 0.4, cutoff_per_m = 0.5, seed = 1 }
+[[box]]
+min_m = [-4.0, -30.0, 0.0]
+max_m = [-0.5, 30.0, 18.0]
+texture = { colour = [0.7, 0.7, 0.7], contrast = 0.3, cutoff_per_m = 0.5, seed = 2 }
+[[box]]
+min_m = [0.5, -30.0, 0.0]
+max_m = [4.0, 30.0, 18.0]
+texture = { colour = [0.6, 0.6, 0.7], contrast = 0.3, cutoff_per_m = 0.5, seed = 3 }
+"#;
+
+#[test]
+fn the_unseen_fraction_is_judged_where_the_truth_exceeds_its_target() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("street.toml");
+    std::fs::write(&scene, STREET).unwrap();
+    let out = dir.path().join("out");
+    let opts = EvalOptions {
+        scenes_dir: dir.path().to_path_buf(),
+        out_dir: out.clone(),
+        scenes: vec![scene.display().to_string()],
+        quick: false,
+        progress: false,
+        decimation_table: false,
+        colmap: None,
+    };
+    run(&opts).unwrap();
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("results.json")).unwrap()).unwrap();
+    let target = v["targets"]["unseen_fraction_max"].as_f64().unwrap();
+    let mut judged = 0;
+    for seg in v["segments"].as_array().unwrap() {
+        let ex = &seg["unseen_fraction_where_exceeded"];
+        let within = seg["empirical_m"]["unseen"].as_f64();
+        if ex.is_null() {
+            // Never exceeded within the sweep: the unseen criterion never failed.
+            assert_eq!(seg["empirical_m"]["unseen_at_least"], true, "{seg}");
+            continue;
+        }
+        judged += 1;
+        // Over the target there, and beyond the last spacing within it.
+        let truth = ex["truth"].as_f64().unwrap();
+        assert!(truth > target && truth <= 1.0, "{ex}");
+        let at = ex["spacing_m"].as_f64().unwrap();
+        assert!(within.is_none_or(|w| at > w), "{at} not beyond {within:?}");
+        for k in ["open_loop", "closed_loop"] {
+            let u = &ex[k];
+            assert!(
+                u.is_null() || (0.0..=1.0).contains(&u.as_f64().unwrap()),
+                "{k}: {u}"
+            );
+        }
+    }
+    assert!(
+        judged > 0,
+        "no segment of the street exceeded the unseen target"
+    );
 }
 
 #[test]

@@ -422,6 +422,30 @@ pub struct SegmentTruth {
     pub unseen_open: Option<f64>,
     pub parallax_closed_px: Option<f64>,
     pub unseen_closed: Option<f64>,
+    /// The unseen fraction where the truth's first exceeds its target (`None`: it never
+    /// does within the sweep).
+    pub unseen_exceeded: Option<UnseenExceeded>,
+}
+
+/// The quality model's open- and closed-loop predictions of the worst interval at one
+/// spacing ([`SegmentTruth`]'s fields of the same names).
+#[derive(Debug, Clone, Copy, Default)]
+struct LoopsAt {
+    parallax_open_px: Option<f64>,
+    unseen_open: Option<f64>,
+    parallax_closed_px: Option<f64>,
+    unseen_closed: Option<f64>,
+}
+
+/// At the smallest swept spacing (whole view steps) whose worst in-between view the truth
+/// finds over the unseen-fraction target: the truth's worst, and the quality model's worst
+/// interval, open and closed loop, as at the target spacing.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct UnseenExceeded {
+    pub spacing_m: f64,
+    pub truth: f64,
+    pub open: Option<f64>,
+    pub closed: Option<f64>,
 }
 
 /// The empirical permissible spacing of one segment.
@@ -1310,6 +1334,7 @@ pub fn evaluate_scene(
                     }
                 }
                 ok_k[c] = Some(lo);
+                fail_k[c] = Some(hi);
                 geo_ok[c] = Some(lo as f64 * step);
             }
         }
@@ -1343,44 +1368,55 @@ pub fn evaluate_scene(
         // (Until the thirteenth session the open loop took every frame of the segment, so
         // its end frame spoke for an interval across the segment's end that the truth
         // does not judge: docs/eval.md.)
-        let target_intervals: Vec<(usize, usize)> = target_k.map_or(Vec::new(), |k| {
+        let loops_at = |k: usize| -> LoopsAt {
+            let spacing_m = k as f64 * step;
             let mut intervals: Vec<(usize, usize)> =
                 tasks_at(k).iter().map(|&(i, j, _)| (i, j)).collect();
             intervals.dedup();
-            intervals
-        });
-        let open_at = |f: fn(&crate::core::QualityPrediction) -> Option<f64>| {
-            target_m.and_then(|t| {
-                target_intervals
+            let open = |f: fn(&crate::core::QualityPrediction) -> Option<f64>| {
+                intervals
                     .iter()
                     .map(|&(i, j)| (i + j) / 2)
                     .filter(|mid| (a..=b).contains(mid))
-                    .filter_map(|mid| visibilities[mid].predict_at(t).as_ref().and_then(f))
+                    .filter_map(|mid| visibilities[mid].predict_at(spacing_m).as_ref().and_then(f))
                     .reduce(f64::max)
-            })
-        };
-        let (parallax_closed_px, unseen_closed) = match target_k {
-            Some(_) => {
-                let measured: Vec<(Option<f64>, f64)> = target_intervals
-                    .par_iter()
-                    .map(|&(i, j)| {
-                        let p = closedloop::pair(&kept[i], &kept[j]).parallax_span_px;
-                        let u = closedloop::unseen_fraction(&kept[(i + j) / 2], &kept[i], &kept[j]);
-                        (p, u)
-                    })
-                    .collect();
-                (
-                    measured.iter().filter_map(|m| m.0).reduce(f64::max),
-                    measured.iter().map(|m| m.1).reduce(f64::max),
-                )
+            };
+            let measured: Vec<(Option<f64>, f64)> = intervals
+                .par_iter()
+                .map(|&(i, j)| {
+                    let p = closedloop::pair(&kept[i], &kept[j]).parallax_span_px;
+                    let u = closedloop::unseen_fraction(&kept[(i + j) / 2], &kept[i], &kept[j]);
+                    (p, u)
+                })
+                .collect();
+            LoopsAt {
+                parallax_open_px: open(|p| p.parallax_px),
+                unseen_open: open(|p| p.unseen_fraction),
+                parallax_closed_px: measured.iter().filter_map(|m| m.0).reduce(f64::max),
+                unseen_closed: measured.iter().map(|m| m.1).reduce(f64::max),
             }
-            None => (None, None),
         };
+        let at_target_loops = target_k.map(loops_at).unwrap_or_default();
+        // The target spacing is mostly parallax's: the truth's unseen fraction there is
+        // below a tenth of its target on nearly every segment, so the unseen prediction is
+        // also judged where the truth first exceeds that target (the first failing
+        // spacing of the unseen criterion, in whole view steps).
+        let unseen_exceeded = fail_k[1].map(|k| {
+            let truth = GeoStats::of(geo_of(&tasks_at(k), &mut known).iter()).unseen_worst;
+            let l = loops_at(k);
+            UnseenExceeded {
+                spacing_m: k as f64 * step,
+                truth,
+                open: l.unseen_open,
+                closed: l.unseen_closed,
+            }
+        });
         let seg_truth = SegmentTruth {
-            parallax_open_px: open_at(|p| p.parallax_px),
-            unseen_open: open_at(|p| p.unseen_fraction),
-            parallax_closed_px,
-            unseen_closed,
+            parallax_open_px: at_target_loops.parallax_open_px,
+            unseen_open: at_target_loops.unseen_open,
+            parallax_closed_px: at_target_loops.parallax_closed_px,
+            unseen_closed: at_target_loops.unseen_closed,
+            unseen_exceeded,
             target_m,
             target_at_least: !geo_failed[0]
                 && !geo_failed[1]
