@@ -90,10 +90,18 @@ impl Geometry {
 
     #[inline]
     pub(crate) fn inside(&self, col: f64, row: f64) -> bool {
-        col >= -0.5
-            && row >= -0.5
-            && col <= self.width as f64 - 0.5
-            && row <= self.height as f64 - 0.5
+        self.inside_col(col) && self.inside_row(row)
+    }
+
+    /// Whether a continuous column (row) index lies within the image's (NaN does not).
+    #[inline]
+    fn inside_col(&self, col: f64) -> bool {
+        col >= -0.5 && col <= self.width as f64 - 0.5
+    }
+
+    #[inline]
+    fn inside_row(&self, row: f64) -> bool {
+        row >= -0.5 && row <= self.height as f64 - 0.5
     }
 
     /// Catmull-Rom bicubic sample at a continuous pixel index (clamped at the
@@ -248,20 +256,18 @@ impl<'a> Plane<'a> {
             let delta = x_t - view.x_m;
             // Where the plane is behind the capture `reproject` gives `None` for every pixel.
             let axes = g.reproject(sc, 0.0, 0.0, t, delta).map(|_| {
-                let w_max = g.width as f64 - 0.5;
-                let h_max = g.height as f64 - 0.5;
                 let cols = xs
                     .iter()
                     .map(|&x| {
                         let col = g.reproject(sc, x, 0.0, t, delta).map_or(f64::NAN, |p| p.0);
-                        ((-0.5..=w_max).contains(&col), Tap::at(col, g.width))
+                        (g.inside_col(col), Tap::at(col, g.width))
                     })
                     .collect();
                 let rows = ys
                     .iter()
                     .map(|&y| {
                         let row = g.reproject(sc, 0.0, y, t, delta).map_or(f64::NAN, |p| p.1);
-                        ((-0.5..=h_max).contains(&row), Tap::at(row, g.height))
+                        (g.inside_row(row), Tap::at(row, g.height))
                     })
                     .collect();
                 (cols, rows)
