@@ -172,25 +172,15 @@ impl Tap {
     }
 }
 
-/// `x.round()` (half away from zero) without the libm call baseline x86-64
-/// makes of it (no SSE4.1 `roundsd`): below 2^52 the truncation and the
-/// fraction `x − trunc(x)` are exact, so this is the same value (up to the
-/// sign of a zero); beyond, and for NaN and infinities, `round` itself.
+/// The pixel nearest continuous index `x` (centres at integers) for `x` in `[-0.5, 2^52)`:
+/// `x.round()` (half away from zero) saturated at 0, as an index. In that range the
+/// truncation and the fraction `x − trunc(x)` are exact, so the half is decided exactly. By
+/// an integer compare, where `round` is a libm call on baseline x86-64; rounding to a float
+/// and converting that back made the warp's forward pass a fifth slower.
 #[inline]
-pub(crate) fn round_half_away(x: f64) -> f64 {
-    if x.abs() < 4.5e15 {
-        let t = x as i64 as f64;
-        let f = x - t;
-        if f >= 0.5 {
-            t + 1.0
-        } else if f <= -0.5 {
-            t - 1.0
-        } else {
-            t
-        }
-    } else {
-        x.round()
-    }
+fn nearest(x: f64) -> usize {
+    let t = x as usize;
+    t + usize::from(x - t as f64 >= 0.5)
 }
 
 /// Catmull-Rom weights of the taps at -1, 0, 1, 2 for fractional offset `t`.
@@ -411,14 +401,14 @@ fn warp_one(g: &Geometry, src: &View, x_t: f64) -> (Vec<f32>, Vec<bool>) {
     let to_target = src.x_m - x_t;
     let sc = g.pitch_rad.sin_cos();
     let (xs, ys) = g.norm_tables();
+    let (w_lim, h_lim) = (w as f64 - 0.5, h as f64 - 0.5);
     for (r, &y) in ys.iter().enumerate() {
         for (i, &x) in xs.iter().enumerate() {
             let d = src.depth_m[r * w + i] as f64;
             let t = if d.is_finite() && d > 0.0 { d } else { SKY_M };
             if let Some((col, row, depth)) = g.reproject(sc, x, y, t, to_target) {
-                let (c, rr) = (round_half_away(col), round_half_away(row));
-                if c >= 0.0 && rr >= 0.0 && (c as usize) < w && (rr as usize) < h {
-                    let k = rr as usize * w + c as usize;
+                if col > -0.5 && row > -0.5 && col < w_lim && row < h_lim {
+                    let k = nearest(row) * w + nearest(col);
                     if depth < z[k] {
                         z[k] = depth;
                     }
@@ -456,6 +446,8 @@ fn warp_one(g: &Geometry, src: &View, x_t: f64) -> (Vec<f32>, Vec<bool>) {
     // itself sees that point (its own depth agrees).
     let mut lum = vec![0f32; n];
     let mut valid = vec![false; n];
+    let mut fetch = WARP_FETCH.take();
+    fetch.clear();
     let from_target = x_t - src.x_m;
     for (r, &y) in ys.iter().enumerate() {
         for (i, &x) in xs.iter().enumerate() {
@@ -469,10 +461,7 @@ fn warp_one(g: &Geometry, src: &View, x_t: f64) -> (Vec<f32>, Vec<bool>) {
             if !g.inside(col, row) {
                 continue;
             }
-            let (c, rr) = (
-                (round_half_away(col) as usize).min(w - 1),
-                (round_half_away(row) as usize).min(h - 1),
-            );
+            let (c, rr) = (nearest(col).min(w - 1), nearest(row).min(h - 1));
             let ds = src.depth_m[rr * w + c] as f64;
             let ds = if ds.is_finite() && ds > 0.0 {
                 ds
@@ -485,16 +474,25 @@ fn warp_one(g: &Geometry, src: &View, x_t: f64) -> (Vec<f32>, Vec<bool>) {
                 (ds - depth).abs() <= 0.02 * depth + 0.05
             };
             if agree {
-                lum[r * w + i] = g.sample(&src.lum, col, row);
-                valid[r * w + i] = true;
+                fetch.push((r * w + i, col, row));
             }
         }
     }
+    // The samples in a loop of their own: between the tests above each waited on the one
+    // before; on their own the next sample's loads start while this one sums.
+    for &(k, col, row) in &fetch {
+        lum[k] = g.sample(&src.lum, col, row);
+        valid[k] = true;
+    }
+    WARP_FETCH.set(fetch);
     WARP_DEPTHS.set((z, zf));
     (lum, valid)
 }
 
 thread_local! {
+    /// [`warp_one`]'s pixels to sample (index, source column and row), kept between calls.
+    static WARP_FETCH: std::cell::Cell<Vec<(usize, f64, f64)>> =
+        const { std::cell::Cell::new(Vec::new()) };
     /// [`warp_one`]'s z-buffer and its crack-filled copy, kept between calls: freshly
     /// allocated for each of `alfd eval`'s thousands of warps, their pages were returned to
     /// the system and faulted in again.
@@ -599,6 +597,31 @@ mod tests {
             x_m,
             lum,
             depth_m: vec![10.0; g.width * g.height],
+        }
+    }
+
+    #[test]
+    fn nearest_is_round_half_away_saturated_at_zero() {
+        let want = |x: f64| x.round().max(0.0) as usize;
+        let mut xs = vec![-0.5, -0.49999999999999994, -0.25, -0.0, 0.0, 0.5, 1.5, 2.5];
+        xs.extend([0.49999999999999994, 1.4999999999999998, 2.4999999999999996]);
+        xs.extend([
+            199.5,
+            199.49999999999997,
+            4503599627370495.5,
+            4503599627370494.0,
+        ]);
+        let mut s = 7u64;
+        for _ in 0..100_000 {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            let x = (s >> 11) as f64 / (1u64 << 53) as f64 * 700.0 - 0.5;
+            let half = x.floor() + 0.5;
+            xs.extend([x, half, half.next_down(), half.next_up()]);
+        }
+        for x in xs.into_iter().filter(|&x| x >= -0.5) {
+            assert_eq!(nearest(x), want(x), "{x:e}");
         }
     }
 
