@@ -103,6 +103,18 @@ enum Seen {
     Unsure,
 }
 
+/// A pixel of [`Truth::classify`] a depth map left undecided for one capture or both.
+struct Pending {
+    k: usize,
+    i: usize,
+    r: usize,
+    d: f64,
+    inside: u8,
+    seen: u8,
+    unsure: [bool; 2],
+    at: [(f64, f64); 2],
+}
+
 /// The scene and the survey's camera geometry: everything the truth needs.
 #[derive(Debug, Clone, Copy)]
 pub struct Truth<'a> {
@@ -253,18 +265,40 @@ impl<'a> Truth<'a> {
         let mut exact_tests = 0;
         let sc = self.g.pitch_rad.sin_cos();
         let (xs, ys) = self.g.norm_tables();
+        let caps = [a, b];
+        // A pixel's class from how many captures hold it in frame and see it, and where.
+        let mut finish = |k: usize, inside: u8, seen: u8, at: [(f64, f64); 2]| {
+            let c = match (inside, seen) {
+                (0, _) => OUT_OF_BOTH,
+                (_, 2) => BOTH,
+                (_, 1) => ONE,
+                _ => NEITHER,
+            };
+            if c == BOTH {
+                let (dc, dr) = (at[0].0 - at[1].0, at[0].1 - at[1].1);
+                // Squared: the span takes the root of the two it selects.
+                disparities.push(dc * dc + dr * dr);
+            }
+            class[k] = c;
+            counts[c as usize] += 1;
+        };
+        // Pixels a depth map left undecided wait for the exact test until the pass is over:
+        // the call in the loop cost the common pixels their registers.
+        let mut pending: Vec<Pending> = Vec::new();
+        let mut sky = 0;
         for (r, &y) in ys.iter().enumerate() {
             for (i, &x) in xs.iter().enumerate() {
                 let k = r * w + i;
                 let d = view.depth_m[k] as f64;
                 if !(d.is_finite() && d > 0.0) {
-                    counts[SKY as usize] += 1;
+                    sky += 1;
                     continue;
                 }
                 let mut inside = 0;
                 let mut seen = 0;
+                let mut unsure = [false; 2];
                 let mut at = [(0.0, 0.0); 2];
-                for (n, cap) in [a, b].into_iter().enumerate() {
+                for (n, cap) in caps.into_iter().enumerate() {
                     let Some((col, row, depth)) = self.g.reproject(sc, x, y, d, view.x_m - cap.x_m)
                     else {
                         continue;
@@ -274,38 +308,45 @@ impl<'a> Truth<'a> {
                     }
                     inside += 1;
                     at[n] = (col, row);
-                    let s = if exact_everywhere {
-                        Seen::Unsure
-                    } else {
-                        self.seen_in_map(cap, col, row, depth)
-                    };
-                    let yes = match s {
-                        Seen::Yes => true,
-                        Seen::Unsure => {
-                            exact_tests += 1;
-                            let p = self.point(view.x_m, i, r, d);
-                            !self.occluded([cap.x_m, self.y_m, self.z_m], p)
-                        }
-                    };
-                    if yes {
+                    if exact_everywhere {
+                        unsure[n] = true;
+                        continue;
+                    }
+                    match self.seen_in_map(cap, col, row, depth) {
+                        Seen::Yes => seen += 1,
+                        Seen::Unsure => unsure[n] = true,
+                    }
+                }
+                if unsure[0] || unsure[1] {
+                    pending.push(Pending {
+                        k,
+                        i,
+                        r,
+                        d,
+                        inside,
+                        seen,
+                        unsure,
+                        at,
+                    });
+                    continue;
+                }
+                finish(k, inside, seen, at);
+            }
+        }
+        for p in pending {
+            let mut seen = p.seen;
+            for (cap, unsure) in caps.into_iter().zip(p.unsure) {
+                if unsure {
+                    exact_tests += 1;
+                    let pt = self.point(view.x_m, p.i, p.r, p.d);
+                    if !self.occluded([cap.x_m, self.y_m, self.z_m], pt) {
                         seen += 1;
                     }
                 }
-                let c = match (inside, seen) {
-                    (0, _) => OUT_OF_BOTH,
-                    (_, 2) => BOTH,
-                    (_, 1) => ONE,
-                    _ => NEITHER,
-                };
-                if c == BOTH {
-                    let (dc, dr) = (at[0].0 - at[1].0, at[0].1 - at[1].1);
-                    // Squared: the span takes the root of the two it selects.
-                    disparities.push(dc * dc + dr * dr);
-                }
-                class[k] = c;
-                counts[c as usize] += 1;
             }
+            finish(p.k, p.inside, seen, p.at);
         }
+        counts[SKY as usize] += sky;
         Classification {
             class,
             counts,
