@@ -3,6 +3,7 @@
 //! captures.
 
 use alfd::eval::{run, EvalOptions};
+use std::path::PathBuf;
 
 const SCENE: &str = r#"name = "tiny"
 description = "one building, small and coarse"
@@ -24,11 +25,16 @@ max_m = [4.0, 4.0, 20.0]
 texture = { colour = [0.7, 0.7, 0.7], contrast = 0.3, cutoff_per_m = 0.5, seed = 2 }
 "#;
 
-#[test]
-fn eval_writes_report_json_and_plots() {
+/// `alfd eval` of the scene `text`, written as `name.toml` into a fresh directory: the
+/// directory (removed when dropped), the output directory, `report.md` and `results.json`.
+fn eval_scene(
+    name: &str,
+    text: &str,
+    decimation_table: bool,
+) -> (tempfile::TempDir, PathBuf, String, serde_json::Value) {
     let dir = tempfile::tempdir().unwrap();
-    let scene = dir.path().join("tiny.toml");
-    std::fs::write(&scene, SCENE).unwrap();
+    let scene = dir.path().join(format!("{name}.toml"));
+    std::fs::write(&scene, text).unwrap();
     let out = dir.path().join("out");
     let opts = EvalOptions {
         scenes_dir: dir.path().to_path_buf(),
@@ -36,11 +42,19 @@ fn eval_writes_report_json_and_plots() {
         scenes: vec![scene.display().to_string()],
         quick: false,
         progress: false,
-        decimation_table: true,
+        decimation_table,
         colmap: None,
     };
     let report = run(&opts).unwrap();
     let md = std::fs::read_to_string(report).unwrap();
+    let v =
+        serde_json::from_str(&std::fs::read_to_string(out.join("results.json")).unwrap()).unwrap();
+    (dir, out, md, v)
+}
+
+#[test]
+fn eval_writes_report_json_and_plots() {
+    let (_dir, out, md, v) = eval_scene("tiny", SCENE, true);
     assert!(md.contains("| occlusion |") && md.contains("Empirical permissible spacing"));
     for f in [
         "results.json",
@@ -50,8 +64,6 @@ fn eval_writes_report_json_and_plots() {
     ] {
         assert!(out.join(f).exists(), "{f}");
     }
-    let v: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("results.json")).unwrap()).unwrap();
     let occ = v["tiny"]["occlusion"]["equal"]["lightfield"]["captures"]
         .as_u64()
         .unwrap();
@@ -240,22 +252,7 @@ texture = { colour = [0.6, 0.6, 0.7], contrast = 0.3, cutoff_per_m = 0.5, seed =
 
 #[test]
 fn the_unseen_fraction_is_judged_where_the_truth_exceeds_its_target() {
-    let dir = tempfile::tempdir().unwrap();
-    let scene = dir.path().join("street.toml");
-    std::fs::write(&scene, STREET).unwrap();
-    let out = dir.path().join("out");
-    let opts = EvalOptions {
-        scenes_dir: dir.path().to_path_buf(),
-        out_dir: out.clone(),
-        scenes: vec![scene.display().to_string()],
-        quick: false,
-        progress: false,
-        decimation_table: false,
-        colmap: None,
-    };
-    run(&opts).unwrap();
-    let v: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("results.json")).unwrap()).unwrap();
+    let (_dir, _, _, v) = eval_scene("street", STREET, false);
     let target = v["targets"]["unseen_fraction_max"].as_f64().unwrap();
     let mut judged = 0;
     for seg in v["segments"].as_array().unwrap() {
