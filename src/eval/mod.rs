@@ -422,8 +422,8 @@ pub struct SegmentTruth {
     pub unseen_open: Option<f64>,
     pub parallax_closed_px: Option<f64>,
     pub unseen_closed: Option<f64>,
-    /// The unseen fraction where the truth's first exceeds its target (`None`: it never
-    /// does within the sweep).
+    /// The predictions and the truth where the truth's unseen fraction first exceeds its
+    /// target (`None`: it never does within the sweep).
     pub unseen_exceeded: Option<UnseenExceeded>,
 }
 
@@ -437,9 +437,9 @@ struct LoopsAt {
     unseen_closed: Option<f64>,
 }
 
-/// At the smallest swept spacing (whole view steps) whose worst in-between view the truth
-/// finds over the unseen-fraction target: the truth's worst, and the quality model's worst
-/// interval, open and closed loop, as at the target spacing.
+/// At the first spacing (whole view steps, found by the sweep and its bisection) whose worst
+/// in-between view the truth finds over the unseen-fraction target: the truth's worst, and
+/// the quality model's worst interval, open and closed loop, as at the target spacing.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct UnseenExceeded {
     pub spacing_m: f64,
