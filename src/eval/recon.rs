@@ -135,15 +135,10 @@ impl Geometry {
             }
             return acc;
         }
-        for (dr, wy) in wr.iter().enumerate() {
-            let rr = (r0 + dr as i64 - 1).clamp(0, h - 1) as usize;
+        let cols = col.indices(self.width);
+        for (rr, wy) in row.indices(self.height).into_iter().zip(wr) {
             let line = &img[rr * self.width..(rr + 1) * self.width];
-            let mut s = 0f32;
-            for (dc, wx) in wc.iter().enumerate() {
-                let cc = (c0 + dc as i64 - 1).clamp(0, w - 1) as usize;
-                s += wx * line[cc];
-            }
-            acc += wy * s;
+            acc += wy * tap_sum(line, cols, &wc);
         }
         acc
     }
@@ -158,6 +153,13 @@ struct Tap {
 }
 
 impl Tap {
+    /// The four taps' pixels on an axis of `n`, clamped to it.
+    #[inline]
+    fn indices(self, n: usize) -> [usize; 4] {
+        let last = n as i64 - 1;
+        [0, 1, 2, 3].map(|d| (self.first + d - 1).clamp(0, last) as usize)
+    }
+
     /// The taps at continuous index `x` on an axis of `n` pixels.
     #[inline]
     fn at(x: f64, n: usize) -> Tap {
@@ -181,6 +183,17 @@ impl Tap {
 fn nearest(x: f64) -> usize {
     let t = x as usize;
     t + usize::from(x - t as f64 >= 0.5)
+}
+
+/// The taps' weighted sum along one image line: `Σ weights[k] · line[idx[k]]`, from zero, in
+/// tap order.
+#[inline]
+fn tap_sum(line: &[f32], idx: [usize; 4], weights: &[f32; 4]) -> f32 {
+    let mut s = 0f32;
+    for (c, wx) in idx.into_iter().zip(weights) {
+        s += wx * line[c];
+    }
+    s
 }
 
 /// Catmull-Rom weights of the taps at -1, 0, 1, 2 for fractional offset `t`.
@@ -280,11 +293,11 @@ impl<'a> Plane<'a> {
         let (mut a, mut b) = (SideRows::new(g, &self.a), SideRows::new(g, &self.b));
         let wa = self.wa;
         let nearer_is_a = wa >= 0.5;
+        let a_cols = self.a.axes.as_ref().map(|(cols, _)| cols.as_slice());
+        let b_cols = self.b.axes.as_ref().map(|(cols, _)| cols.as_slice());
         for (r, line) in out.chunks_exact_mut(w).enumerate() {
             let (va, a_row) = a.row(g, r);
             let (vb, b_row) = b.row(g, r);
-            let a_cols = self.a.axes.as_ref().map(|(cols, _)| cols.as_slice());
-            let b_cols = self.b.axes.as_ref().map(|(cols, _)| cols.as_slice());
             let nearer = if nearer_is_a {
                 (va, &self.a)
             } else {
@@ -338,15 +351,11 @@ impl<'a> SideRows<'a> {
                 out: Vec::new(),
             };
         };
-        let last = g.width as i64 - 1;
         SideRows {
             lum: &side.view.lum,
             cols: cols
                 .iter()
-                .map(|(_, t)| {
-                    let idx = [0, 1, 2, 3].map(|d| (t.first + d - 1).clamp(0, last) as usize);
-                    (idx, t.weights)
-                })
+                .map(|(_, t)| (t.indices(g.width), t.weights))
                 .collect(),
             rows,
             sums: vec![0f32; g.width * g.height],
@@ -361,17 +370,13 @@ impl<'a> SideRows<'a> {
         let Some(&(r_in, rt)) = self.rows.get(r) else {
             return (&[], false);
         };
-        let (w, last) = (g.width, g.height as i64 - 1);
-        let src = [0, 1, 2, 3].map(|d| (rt.first + d - 1).clamp(0, last) as usize);
+        let w = g.width;
+        let src = rt.indices(g.height);
         for &k in &src {
             if !self.summed[k] {
                 let line = &self.lum[k * w..(k + 1) * w];
                 for ((idx, wx), s) in self.cols.iter().zip(&mut self.sums[k * w..(k + 1) * w]) {
-                    let mut acc = 0f32;
-                    for (&c, &wc) in idx.iter().zip(wx) {
-                        acc += wc * line[c];
-                    }
-                    *s = acc;
+                    *s = tap_sum(line, *idx, wx);
                 }
                 self.summed[k] = true;
             }
