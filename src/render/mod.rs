@@ -439,19 +439,94 @@ const SUN: [f64; 3] = [0.37139068, 0.55708601, 0.74278135];
 
 #[inline]
 fn lit(albedo: [f32; 3], normal: [f64; 3]) -> [f32; 3] {
-    let l = (0.45 + 0.55 * dot(normal, SUN).max(0.0)) as f32;
+    times(albedo, light(normal))
+}
+
+#[inline]
+fn light(normal: [f64; 3]) -> f32 {
+    (0.45 + 0.55 * dot(normal, SUN).max(0.0)) as f32
+}
+
+#[inline]
+fn times(albedo: [f32; 3], l: f32) -> [f32; 3] {
     [albedo[0] * l, albedo[1] * l, albedo[2] * l]
 }
 
-/// Colour of a traced ray (sky when it met nothing), polynomial-sine texture.
-#[inline]
-fn shade(scene: &Scene, found: Option<(f64, Surface)>, o: [f64; 3], d: [f64; 3]) -> [f32; 3] {
-    match found {
-        None => scene.sky_rgb,
-        Some((t, s)) => {
-            let h = hit_of(scene, s, t, o, d);
-            let p = [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]];
-            lit(h.texture.albedo(p), h.normal)
+/// Pixels of a row traced before their textures are evaluated, so that the
+/// texture sees its points [`Texture::BATCH`] at a time.
+const CHUNK_PX: usize = 8;
+
+/// A textured sample waiting for its texture: where it hit, and where its
+/// colour goes.
+struct Waiting<'a> {
+    texture: &'a Texture,
+    p: [f64; 3],
+    /// The sun's light on the surface there ([`light`]).
+    light: f32,
+    slot: u32,
+}
+
+/// The colours of a run of samples, in the order they were traced; the
+/// textured ones filled in by [`Shades::resolve`], a batch of points at a time
+/// (each colour the same bits as the sample's own [`Texture::albedo`]
+/// would give).
+#[derive(Default)]
+struct Shades<'a> {
+    colours: Vec<[f32; 3]>,
+    waiting: Vec<Waiting<'a>>,
+}
+
+impl<'a> Shades<'a> {
+    fn clear(&mut self) {
+        self.colours.clear();
+        self.waiting.clear();
+    }
+
+    #[inline]
+    fn push(&mut self, scene: &'a Scene, found: Option<(f64, Surface)>, o: [f64; 3], d: [f64; 3]) {
+        match found {
+            None => self.colours.push(scene.sky_rgb),
+            Some((t, s)) => {
+                let h = hit_of(scene, s, t, o, d);
+                let p = [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]];
+                if h.texture.contrast == 0.0 {
+                    self.colours.push(lit(h.texture.colour, h.normal));
+                } else {
+                    self.waiting.push(Waiting {
+                        texture: h.texture,
+                        p,
+                        light: light(h.normal),
+                        slot: self.colours.len() as u32,
+                    });
+                    self.colours.push([0.0; 3]);
+                }
+            }
+        }
+    }
+
+    /// Evaluates the waiting samples' textures in runs of up to
+    /// [`Texture::BATCH`] consecutive samples on one texture (a short run's
+    /// spare lanes repeat its last point and are dropped).
+    fn resolve(&mut self) {
+        let mut rest = &self.waiting[..];
+        while let Some(first) = rest.first() {
+            let run = rest
+                .iter()
+                .take(Texture::BATCH)
+                .take_while(|s| std::ptr::eq(s.texture, first.texture))
+                .count();
+            let mut xyz = [[0.0; Texture::BATCH]; 3];
+            for k in 0..Texture::BATCH {
+                let p = rest[k.min(run - 1)].p;
+                for c in 0..3 {
+                    xyz[c][k] = p[c];
+                }
+            }
+            let albedo = first.texture.albedo_batch(&xyz[0], &xyz[1], &xyz[2]);
+            for (s, a) in rest[..run].iter().zip(albedo) {
+                self.colours[s.slot as usize] = times(a, s.light);
+            }
+            rest = &rest[run..];
         }
     }
 }
@@ -480,28 +555,39 @@ pub fn render(scene: &Scene, camera: &Camera, opts: &RenderOptions) -> Frame {
             let ys: Vec<f64> = (0..n)
                 .map(|sy| (sample_pos(r, sy, n) - cam.cy) / cam.f)
                 .collect();
-            for i in 0..w {
-                let list = bins.at(i, r);
-                let prims = || list.iter().map(|&p| p as usize);
-                let dc = direction(cam.a, cam.u, cam.v, xc[i], yc);
-                let centre = nearest(scene, prims(), o, dc);
-                depth_row[i] = centre.map_or(f32::INFINITY, |c| c.0 as f32);
-                let mut acc = [0f32; 3];
-                for (sy, &y) in ys.iter().enumerate() {
-                    for sx in 0..n {
-                        let (d, found) = if mid == Some(sx) && mid == Some(sy) {
-                            (dc, centre)
-                        } else {
-                            let d = direction(cam.a, cam.u, cam.v, xs[i * n + sx], y);
-                            (d, nearest(scene, prims(), o, d))
-                        };
-                        let c = shade(scene, found, o, d);
+            let mut shades = Shades::default();
+            for i0 in (0..w).step_by(CHUNK_PX) {
+                let pixels = i0..(i0 + CHUNK_PX).min(w);
+                shades.clear();
+                for i in pixels.clone() {
+                    let list = bins.at(i, r);
+                    let prims = || list.iter().map(|&p| p as usize);
+                    let dc = direction(cam.a, cam.u, cam.v, xc[i], yc);
+                    let centre = nearest(scene, prims(), o, dc);
+                    depth_row[i] = centre.map_or(f32::INFINITY, |c| c.0 as f32);
+                    for (sy, &y) in ys.iter().enumerate() {
+                        for sx in 0..n {
+                            let (d, found) = if mid == Some(sx) && mid == Some(sy) {
+                                (dc, centre)
+                            } else {
+                                let d = direction(cam.a, cam.u, cam.v, xs[i * n + sx], y);
+                                (d, nearest(scene, prims(), o, d))
+                            };
+                            shades.push(scene, found, o, d);
+                        }
+                    }
+                }
+                shades.resolve();
+                // Each pixel's samples summed in the order they were traced.
+                for (i, samples) in pixels.zip(shades.colours.chunks_exact(n * n)) {
+                    let mut acc = [0f32; 3];
+                    for c in samples {
                         acc[0] += c[0];
                         acc[1] += c[1];
                         acc[2] += c[2];
                     }
+                    rgb_row[i] = [acc[0] * inv, acc[1] * inv, acc[2] * inv];
                 }
-                rgb_row[i] = [acc[0] * inv, acc[1] * inv, acc[2] * inv];
             }
         });
     Frame {
@@ -679,6 +765,53 @@ mod tests {
         cs.extend((0..=1.0f32.to_bits()).step_by(97).map(f32::from_bits));
         for c in cs {
             assert_eq!(byte_of(c), by_round(c), "{c}");
+        }
+    }
+
+    #[test]
+    fn colour_is_each_sample_traced_and_textured_one_at_a_time_bit_for_bit() {
+        // The renderer's colour by its definition with the polynomial sines:
+        // every sample ray through `trace` (every primitive, no bins), its
+        // texture evaluated alone, the samples summed in row-major order. The
+        // bins, the shared middle ray and the batched textures must not move a
+        // bit (a short run of one texture, an edge between two, sky).
+        let manifest = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        for name in ["district", "tree", "roof"] {
+            let sc = Scene::load(&manifest.join(format!("scenes/{name}.toml"))).unwrap();
+            let s = &sc.survey;
+            for x in [s.start_x_m, 0.5 * (s.start_x_m + s.end_x_m)] {
+                let cam = survey_camera(&sc, x, 90, 60);
+                for n in [1, 2, 3] {
+                    let frame = render(&sc, &cam, &RenderOptions { supersample: n });
+                    let o = cam.position_m;
+                    let inv = 1.0 / (n * n) as f32;
+                    for r in 0..60 {
+                        for i in 0..90 {
+                            let mut acc = [0f32; 3];
+                            for sy in 0..n {
+                                for sx in 0..n {
+                                    let d = cam.ray(sample_pos(i, sx, n), sample_pos(r, sy, n));
+                                    let c = match trace(&sc, o, d) {
+                                        None => sc.sky_rgb,
+                                        Some(h) => {
+                                            let t = h.t;
+                                            let p =
+                                                [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]];
+                                            lit(h.texture.albedo(p), h.normal)
+                                        }
+                                    };
+                                    for k in 0..3 {
+                                        acc[k] += c[k];
+                                    }
+                                }
+                            }
+                            let want = acc.map(|a| (a * inv).to_bits());
+                            let got = frame.rgb[r * 90 + i].map(f32::to_bits);
+                            assert_eq!(got, want, "{name} x={x} ss={n} pixel ({i}, {r})");
+                        }
+                    }
+                }
+            }
         }
     }
 

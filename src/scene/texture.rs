@@ -9,6 +9,10 @@ pub const WAVES: usize = 10;
 // `pattern_fast` sums the ten waves as a fixed tree.
 const _: () = assert!(WAVES == 10);
 
+/// Points [`Texture::patterns_fast`] evaluates together: two AVX2 vectors, or
+/// four SSE2 ones, per wave.
+pub const BATCH: usize = 8;
+
 /// Waves padded with zero ones to whole AVX2 vectors: a ten-lane loop ends in
 /// a masked store, microcoded on AMD and a failed store-to-load forward when
 /// the sum reads it back. The padding lanes are computed and never summed.
@@ -174,6 +178,99 @@ impl Texture {
         v * (2.0 / WAVES as f64).sqrt()
     }
 
+    /// Points [`Texture::patterns_fast`] evaluates together.
+    pub const BATCH: usize = BATCH;
+
+    /// [`Texture::pattern_fast`] at [`BATCH`] points (coordinates one array
+    /// per axis), each with the same bits as one call. The waves are the outer
+    /// loop and the points the vector's lanes, so every point meets the same
+    /// operations in the same order as in [`Texture::polynomial_waves`], and
+    /// no lane is spent on padding waves or a sum across lanes.
+    #[inline]
+    pub fn patterns_fast(
+        &self,
+        x: &[f64; BATCH],
+        y: &[f64; BATCH],
+        z: &[f64; BATCH],
+    ) -> [f64; BATCH] {
+        let lim = self.fast_limit_m;
+        let inside = (0..BATCH).all(|l| x[l].abs() < lim && y[l].abs() < lim && z[l].abs() < lim);
+        // Written so that NaN also takes the one-point path (and its exact sines).
+        if !inside {
+            return std::array::from_fn(|l| self.pattern_fast([x[l], y[l], z[l]]));
+        }
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU has AVX2 (checked just above, cached by std).
+            return unsafe { self.polynomial_batch_avx2(x, y, z) };
+        }
+        self.polynomial_batch(x, y, z)
+    }
+
+    /// [`Texture::polynomial_batch`] compiled for AVX2 (the same operations,
+    /// no FMA, so the same bits).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn polynomial_batch_avx2(
+        &self,
+        x: &[f64; BATCH],
+        y: &[f64; BATCH],
+        z: &[f64; BATCH],
+    ) -> [f64; BATCH] {
+        self.polynomial_batch(x, y, z)
+    }
+
+    #[inline(always)]
+    fn polynomial_batch(
+        &self,
+        x: &[f64; BATCH],
+        y: &[f64; BATCH],
+        z: &[f64; BATCH],
+    ) -> [f64; BATCH] {
+        let [kx, ky, kz] = &self.cycles_k;
+        let mut w = [[0.0; BATCH]; WAVES];
+        for (j, wj) in w.iter_mut().enumerate() {
+            let (kxj, kyj, kzj, phj) = (kx[j], ky[j], kz[j], self.cycles_phase[j]);
+            for l in 0..BATCH {
+                // Step for step `polynomial_waves`' (see there).
+                let u = kxj * x[l] + kyj * y[l] + kzj * z[l] + phj;
+                let r = u - ((u + ROUND) - ROUND);
+                let q = if r.abs() > 0.25 {
+                    0.5f64.copysign(r) - r
+                } else {
+                    r
+                };
+                let c = &SIN_2PI;
+                let z = q * q;
+                let z2 = z * z;
+                let z4 = z2 * z2;
+                let lo = (c[0] + c[1] * z) + (c[2] + c[3] * z) * z2;
+                let hi = (c[4] + c[5] * z) + c[6] * z2;
+                wj[l] = q * (lo + hi * z4);
+            }
+        }
+        std::array::from_fn(|l| {
+            let v = ((w[0][l] + w[1][l]) + (w[2][l] + w[3][l]))
+                + ((w[4][l] + w[5][l]) + (w[6][l] + w[7][l]))
+                + (w[8][l] + w[9][l]);
+            v * (2.0 / WAVES as f64).sqrt()
+        })
+    }
+
+    /// [`Texture::albedo`] at [`BATCH`] points, each with the same bits.
+    #[inline]
+    pub fn albedo_batch(
+        &self,
+        x: &[f64; BATCH],
+        y: &[f64; BATCH],
+        z: &[f64; BATCH],
+    ) -> [[f32; 3]; BATCH] {
+        if self.contrast == 0.0 {
+            return [self.colour; BATCH];
+        }
+        self.patterns_fast(x, y, z).map(|v| self.modulate(v))
+    }
+
     /// Albedo at `p`, each channel in `[0, 1]` (the renderer's: polynomial
     /// sines).
     #[inline]
@@ -242,6 +339,43 @@ mod tests {
         // Past the rounding trick's range the libm sines are used, not garbage.
         let far = [1e300, 0.0, 0.0];
         assert_eq!(t.pattern_fast(far).to_bits(), t.pattern(far).to_bits());
+    }
+
+    #[test]
+    fn a_batch_of_points_has_the_bits_of_one_point_at_a_time() {
+        let t = Texture::new([0.5, 0.4, 0.3], 0.7, 3.0, 11);
+        let mut s = 9u64;
+        for scale in [1.0, 300.0, 1e5] {
+            for _ in 0..2_000 {
+                let pts: [[f64; 3]; BATCH] = std::array::from_fn(|_| {
+                    [0, 1, 2].map(|_| (2.0 * splitmix(&mut s) - 1.0) * scale)
+                });
+                let (x, y, z) = (pts.map(|p| p[0]), pts.map(|p| p[1]), pts.map(|p| p[2]));
+                let batch = t.patterns_fast(&x, &y, &z);
+                let albedo = t.albedo_batch(&x, &y, &z);
+                for (l, p) in pts.iter().enumerate() {
+                    assert_eq!(batch[l].to_bits(), t.pattern_fast(*p).to_bits(), "{p:?}");
+                    assert_eq!(albedo[l], t.albedo(*p), "{p:?}");
+                }
+                // The portable build, whatever the CPU: the same bits too.
+                let portable = t.polynomial_batch(&x, &y, &z);
+                assert_eq!(portable.map(f64::to_bits), batch.map(f64::to_bits));
+            }
+        }
+        // One point past the fast range (or NaN) sends the batch the one-point way.
+        let mut x = [1.0; BATCH];
+        x[3] = 1e300;
+        x[5] = f64::NAN;
+        let (y, z) = ([2.0; BATCH], [-3.0; BATCH]);
+        let batch = t.patterns_fast(&x, &y, &z);
+        for l in 0..BATCH {
+            assert_eq!(
+                batch[l].to_bits(),
+                t.pattern_fast([x[l], y[l], z[l]]).to_bits()
+            );
+        }
+        let flat = Texture::new([0.2, 0.3, 0.4], 0.0, 1.0, 3);
+        assert_eq!(flat.albedo_batch(&x, &y, &z), [[0.2, 0.3, 0.4]; BATCH]);
     }
 
     #[test]
