@@ -401,8 +401,11 @@ fn hit_of(scene: &Scene, surface: Surface, t: f64, o: [f64; 3], d: [f64; 3]) -> 
         },
         Surface::Box(i, axis) => {
             let b = &scene.boxes[i];
-            let mut normal = [0.0; 3];
-            normal[axis] = -d[axis].signum();
+            // Selected, not indexed: a store at a run-time index read back
+            // as a whole stalls store-to-load forwarding (the hottest line of
+            // a supersampled frame).
+            let along = |k: usize| if axis == k { -d[k].signum() } else { 0.0 };
+            let normal = [along(0), along(1), along(2)];
             let texture = if axis == 2 && normal[2] > 0.0 {
                 &b.roof
             } else {
@@ -515,13 +518,8 @@ impl<'a> Shades<'a> {
                 .take(Texture::BATCH)
                 .take_while(|s| std::ptr::eq(s.texture, first.texture))
                 .count();
-            let mut xyz = [[0.0; Texture::BATCH]; 3];
-            for k in 0..Texture::BATCH {
-                let p = rest[k.min(run - 1)].p;
-                for c in 0..3 {
-                    xyz[c][k] = p[c];
-                }
-            }
+            let xyz: [[f64; Texture::BATCH]; 3] =
+                std::array::from_fn(|c| std::array::from_fn(|k| rest[k.min(run - 1)].p[c]));
             let albedo = first.texture.albedo_batch(&xyz[0], &xyz[1], &xyz[2]);
             for (s, a) in rest[..run].iter().zip(albedo) {
                 self.colours[s.slot as usize] = times(a, s.light);
