@@ -459,30 +459,44 @@ fn times(albedo: [f32; 3], l: f32) -> [f32; 3] {
 /// texture sees its points [`Texture::BATCH`] at a time.
 const CHUNK_PX: usize = 8;
 
-/// A textured sample waiting for its texture: where it hit, and where its
-/// colour goes.
-struct Waiting<'a> {
-    texture: &'a Texture,
-    p: [f64; 3],
-    /// The sun's light on the surface there ([`light`]).
-    light: f32,
-    slot: u32,
+/// Textured samples on one texture waiting for it: where they hit (one array
+/// per axis, as [`Texture::albedo_batch`] takes them), the sun's light there
+/// ([`light`]) and where their colours go.
+struct Batch<'a> {
+    texture: Option<&'a Texture>,
+    len: usize,
+    xyz: [[f64; Texture::BATCH]; 3],
+    light: [f32; Texture::BATCH],
+    slot: [u32; Texture::BATCH],
 }
 
-/// The colours of a run of samples, in the order they were traced; the
-/// textured ones filled in by [`Shades::resolve`], a batch of points at a time
-/// (each colour the same bits as the sample's own [`Texture::albedo`]
-/// would give).
+impl Default for Batch<'_> {
+    fn default() -> Self {
+        Batch {
+            texture: None,
+            len: 0,
+            xyz: [[0.0; Texture::BATCH]; 3],
+            light: [0.0; Texture::BATCH],
+            slot: [0; Texture::BATCH],
+        }
+    }
+}
+
+/// The colours of a run of samples, in the order they were traced. A textured
+/// sample's colour is filled in when its batch is full, when a sample on
+/// another texture comes, or at [`Shades::resolve`]; each the same bits as
+/// the sample's own [`Texture::albedo`] would give.
 #[derive(Default)]
 struct Shades<'a> {
     colours: Vec<[f32; 3]>,
-    waiting: Vec<Waiting<'a>>,
+    batch: Batch<'a>,
 }
 
 impl<'a> Shades<'a> {
     fn clear(&mut self) {
         self.colours.clear();
-        self.waiting.clear();
+        self.batch.len = 0;
+        self.batch.texture = None;
     }
 
     #[inline]
@@ -491,41 +505,52 @@ impl<'a> Shades<'a> {
             None => self.colours.push(scene.sky_rgb),
             Some((t, s)) => {
                 let h = hit_of(scene, s, t, o, d);
-                let p = [o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]];
                 if h.texture.contrast == 0.0 {
                     self.colours.push(lit(h.texture.colour, h.normal));
-                } else {
-                    self.waiting.push(Waiting {
-                        texture: h.texture,
-                        p,
-                        light: light(h.normal),
-                        slot: self.colours.len() as u32,
-                    });
-                    self.colours.push([0.0; 3]);
+                    return;
                 }
+                let same = self
+                    .batch
+                    .texture
+                    .is_some_and(|b| std::ptr::eq(b, h.texture));
+                if !same || self.batch.len == Texture::BATCH {
+                    self.flush();
+                    self.batch.texture = Some(h.texture);
+                }
+                let k = self.batch.len;
+                let b = &mut self.batch;
+                for c in 0..3 {
+                    b.xyz[c][k] = o[c] + t * d[c];
+                }
+                b.light[k] = light(h.normal);
+                b.slot[k] = self.colours.len() as u32;
+                b.len += 1;
+                self.colours.push([0.0; 3]);
             }
         }
     }
 
-    /// Evaluates the waiting samples' textures in runs of up to
-    /// [`Texture::BATCH`] consecutive samples on one texture (a short run's
-    /// spare lanes repeat its last point and are dropped).
-    fn resolve(&mut self) {
-        let mut rest = &self.waiting[..];
-        while let Some(first) = rest.first() {
-            let run = rest
-                .iter()
-                .take(Texture::BATCH)
-                .take_while(|s| std::ptr::eq(s.texture, first.texture))
-                .count();
-            let xyz: [[f64; Texture::BATCH]; 3] =
-                std::array::from_fn(|c| std::array::from_fn(|k| rest[k.min(run - 1)].p[c]));
-            let albedo = first.texture.albedo_batch(&xyz[0], &xyz[1], &xyz[2]);
-            for (s, a) in rest[..run].iter().zip(albedo) {
-                self.colours[s.slot as usize] = times(a, s.light);
-            }
-            rest = &rest[run..];
+    /// Evaluates the waiting batch (its spare lanes repeat its last point and
+    /// are dropped).
+    fn flush(&mut self) {
+        let b = &mut self.batch;
+        let (Some(texture), n @ 1..) = (b.texture, b.len) else {
+            return;
+        };
+        for c in 0..3 {
+            let last = b.xyz[c][n - 1];
+            b.xyz[c][n..].fill(last);
         }
+        let albedo = texture.albedo_batch(&b.xyz[0], &b.xyz[1], &b.xyz[2]);
+        for ((a, l), slot) in albedo.iter().zip(b.light).zip(b.slot).take(n) {
+            self.colours[slot as usize] = times(*a, l);
+        }
+        b.len = 0;
+    }
+
+    /// Fills in every colour still waiting.
+    fn resolve(&mut self) {
+        self.flush();
     }
 }
 
