@@ -107,7 +107,7 @@ impl Geometry {
     /// Catmull-Rom bicubic sample at a continuous pixel index (clamped at the
     /// border): sharper than sample, so resampling blur does not swamp the
     /// aliasing and occlusion errors the spacing is about.
-    #[inline]
+    #[cfg(test)]
     fn sample(&self, img: &[f32], col: f64, row: f64) -> f32 {
         self.sample_taps(img, Tap::at(col, self.width), Tap::at(row, self.height))
     }
@@ -158,6 +158,41 @@ impl Tap {
     fn indices(self, n: usize) -> [usize; 4] {
         let last = n as i64 - 1;
         [0, 1, 2, 3].map(|d| (self.first + d - 1).clamp(0, last) as usize)
+    }
+
+    /// Positions [`Tap::at_lanes`] takes at once.
+    const LANES: usize = 8;
+
+    /// [`Tap::at`] at [`Tap::LANES`] positions, each with the same bits: the positions are
+    /// the vector's lanes (the pixel by an `i32` truncation, which packs where `i64`'s does
+    /// not, and is the same integer on a clamped axis shorter than 2^31 pixels).
+    #[inline]
+    fn at_lanes(x: [f64; Tap::LANES], n: usize) -> [Tap; Tap::LANES] {
+        let hi = (n as i64 - 1) as f64;
+        let x = x.map(|x| x.clamp(0.0, hi));
+        let first = x.map(|x| x as i32);
+        let mut t = [0f32; Tap::LANES];
+        for l in 0..Tap::LANES {
+            t[l] = (x[l] - first[l] as f64) as f32;
+        }
+        // `catmull_rom`, a weight at a time across the lanes.
+        let (mut t2, mut t3) = ([0f32; Tap::LANES], [0f32; Tap::LANES]);
+        for l in 0..Tap::LANES {
+            t2[l] = t[l] * t[l];
+            t3[l] = t2[l] * t[l];
+        }
+        let mut w = [[0f32; Tap::LANES]; 4];
+        for l in 0..Tap::LANES {
+            let (t, t2, t3) = (t[l], t2[l], t3[l]);
+            w[0][l] = 0.5 * (-t3 + 2.0 * t2 - t);
+            w[1][l] = 0.5 * (3.0 * t3 - 5.0 * t2 + 2.0);
+            w[2][l] = 0.5 * (-3.0 * t3 + 4.0 * t2 + t);
+            w[3][l] = 0.5 * (t3 - t2);
+        }
+        std::array::from_fn(|l| Tap {
+            first: first[l] as i64,
+            weights: [w[0][l], w[1][l], w[2][l], w[3][l]],
+        })
     }
 
     /// The taps at continuous index `x` on an axis of `n` pixels.
@@ -485,9 +520,15 @@ fn warp_one(g: &Geometry, src: &View, x_t: f64) -> (Vec<f32>, Vec<bool>) {
     }
     // The samples in a loop of their own: between the tests above each waited on the one
     // before; on their own the next sample's loads start while this one sums.
-    for &(k, col, row) in &fetch {
-        lum[k] = g.sample(&src.lum, col, row);
-        valid[k] = true;
+    for chunk in fetch.chunks(Tap::LANES) {
+        let at =
+            |f: fn(&(usize, f64, f64)) -> f64| std::array::from_fn(|l| chunk.get(l).map_or(0.0, f));
+        let cols = Tap::at_lanes(at(|e| e.1), g.width);
+        let rows = Tap::at_lanes(at(|e| e.2), g.height);
+        for ((&(k, _, _), col), row) in chunk.iter().zip(cols).zip(rows) {
+            lum[k] = g.sample_taps(&src.lum, col, row);
+            valid[k] = true;
+        }
     }
     WARP_FETCH.set(fetch);
     WARP_DEPTHS.set((z, zf));
@@ -532,6 +573,40 @@ pub fn both(g: &Geometry, a: &View, b: &View, x_t: f64, w_opt_per_m: f64) -> [Ve
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Eight taps at once are each [`Tap::at`]'s, bit for bit: across an axis, at and
+    /// beyond both ends (clamped), at whole and half pixels and between.
+    #[test]
+    fn taps_in_lanes_are_the_taps_one_at_a_time() {
+        for n in [1usize, 2, 7, 200, 1280] {
+            let mut xs: Vec<f64> = (0..4000)
+                .map(|k| -3.0 + k as f64 * (n as f64 + 6.0) / 4000.0)
+                .collect();
+            xs.extend([
+                -0.5,
+                0.0,
+                0.5,
+                n as f64 - 1.0,
+                n as f64 - 0.5,
+                1e300,
+                -1e300,
+            ]);
+            xs.extend((0..n.min(50)).flat_map(|i| [i as f64, i as f64 + 0.5, i as f64 + 0.25]));
+            for chunk in xs.chunks(Tap::LANES) {
+                let x = std::array::from_fn(|l| chunk.get(l).copied().unwrap_or(0.0));
+                for (l, tap) in Tap::at_lanes(x, n).into_iter().enumerate() {
+                    let one = Tap::at(x[l], n);
+                    assert_eq!(tap.first, one.first, "n {n} x {}", x[l]);
+                    assert_eq!(
+                        tap.weights.map(f32::to_bits),
+                        one.weights.map(f32::to_bits),
+                        "n {n} x {}",
+                        x[l]
+                    );
+                }
+            }
+        }
+    }
 
     /// What the reference per-pixel light field met: pixels off both captures, and
     /// pixels where the plane is behind a capture.
