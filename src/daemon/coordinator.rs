@@ -45,6 +45,10 @@ const SECOND_NS: u64 = 1_000_000_000;
 const TOO_FAST_EVERY_NS: u64 = 10_000_000_000;
 /// At most this often a STATUSTEXT says a picture's report matched no capture.
 const UNMATCHED_EVERY_NS: u64 = 10_000_000_000;
+/// At most this often a STATUSTEXT says which terms the estimate used.
+const TERMS_EVERY_NS: u64 = 10_000_000_000;
+/// At most this often a STATUSTEXT says the spacing floor holds captures over the permissible.
+const FLOOR_EVERY_NS: u64 = 10_000_000_000;
 /// `camera_command`: how long after its decision a capture waits for the autopilot to say it
 /// took the picture (CAMERA_TRIGGER, CAMERA_FEEDBACK) before it is logged where it was decided.
 pub const PICTURE_WAIT_NS: u64 = 1_000_000_000;
@@ -456,7 +460,7 @@ impl Coordinator {
         }
         // Which terms the estimate used: said when they change (a scene without occlusion
         // boundaries drops the occlusion term), not more than every 10 s.
-        if e.is_ok() && self.terms != Some(e.terms) && mono >= self.terms_said_ns + 10_000_000_000 {
+        if e.is_ok() && self.terms != Some(e.terms) && mono >= self.terms_said_ns + TERMS_EVERY_NS {
             self.terms = Some(e.terms);
             self.terms_said_ns = mono;
             let bound = e.active_bound.map_or("config limit", |b| b.as_str());
@@ -467,7 +471,7 @@ impl Coordinator {
         // targets the operator set: said when it starts, at most every 10 s.
         let floored = e.floor_over_permissible();
         if let Some((chosen, permissible)) = floored.filter(|_| !self.floored) {
-            if due_every(&mut self.floor_said_ns, mono, 10_000_000_000) {
+            if due_every(&mut self.floor_said_ns, mono, FLOOR_EVERY_NS) {
                 let text = format!(
                     "alfd: sampling.spacing_min_m {chosen:.2} m is over the permissible {permissible:.3} m: targets not met"
                 );
