@@ -75,17 +75,32 @@ impl Geometry {
         t: f64,
         delta_m: f64,
     ) -> Option<(f64, f64, f64)> {
-        let depth = t + delta_m * s;
+        let (col, row, depth) = self.reproject_unchecked((s, c), x, y, t, delta_m);
         if depth <= 1e-6 {
             return None;
         }
+        Some((col, row, depth))
+    }
+
+    /// [`Self::reproject`] without its test of the depth: a column, row and depth whatever
+    /// the depth (meaningless unless it is over 1e-6), computed the same way.
+    #[inline(always)]
+    pub(crate) fn reproject_unchecked(
+        &self,
+        (s, c): (f64, f64),
+        x: f64,
+        y: f64,
+        t: f64,
+        delta_m: f64,
+    ) -> (f64, f64, f64) {
+        let depth = t + delta_m * s;
         let xs = (t * x + delta_m * c) / depth;
         let ys = t * y / depth;
-        Some((
+        (
             xs * self.focal_px + self.cx_px - 0.5,
             ys * self.focal_px + self.cy_px - 0.5,
             depth,
-        ))
+        )
     }
 
     #[inline]
@@ -209,17 +224,6 @@ impl Tap {
     }
 }
 
-/// The pixel nearest continuous index `x` (centres at integers) for `x` in `[-0.5, 2^52)`:
-/// `x.round()` (half away from zero) saturated at 0, as an index. In that range the
-/// truncation and the fraction `x − trunc(x)` are exact, so the half is decided exactly. By
-/// an integer compare, where `round` is a libm call on baseline x86-64; rounding to a float
-/// and converting that back made the warp's forward pass a fifth slower.
-#[inline]
-fn nearest(x: f64) -> usize {
-    let t = x as usize;
-    t + usize::from(x - t as f64 >= 0.5)
-}
-
 /// The taps' weighted sum along one image line: `Σ weights[k] · line[idx[k]]`, from zero, in
 /// tap order.
 #[inline]
@@ -229,6 +233,18 @@ fn tap_sum(line: &[f32], idx: [usize; 4], weights: &[f32; 4]) -> f32 {
         s += wx * line[c];
     }
     s
+}
+
+/// The pixel nearest continuous index `x` (centres at integers) for `x` in `[-0.5, 2^31 - 1)`:
+/// `x.round()` (half away from zero) saturated at 0. In that range the truncation and the
+/// fraction `x − trunc(x)` are exact, so the half is decided exactly. By an integer compare,
+/// where `round` is a libm call on baseline x86-64 (rounding to a float and converting that
+/// back made the warp's forward pass a fifth slower); in `i32`, whose conversion packs where
+/// `usize`'s does not. Outside the range: garbage, but no panic.
+#[inline(always)]
+fn nearest_i32(x: f64) -> i32 {
+    let t = x as i32;
+    t.wrapping_add(i32::from(x - t as f64 >= 0.5))
 }
 
 /// Catmull-Rom weights of the taps at -1, 0, 1, 2 for fractional offset `t`.
@@ -442,17 +458,26 @@ fn warp_one(g: &Geometry, src: &View, x_t: f64) -> (Vec<f32>, Vec<bool>) {
     let sc = g.pitch_rad.sin_cos();
     let (xs, ys) = g.norm_tables();
     let (w_lim, h_lim) = (w as f64 - 0.5, h as f64 - 0.5);
+    // A row at a time: first where each pixel lands (no branch, so the divisions pack),
+    // then the splats in pixel order, as one pass would make them.
+    let (mut cell, mut landed) = (vec![u32::MAX; w], vec![0f64; w]);
     for (r, &y) in ys.iter().enumerate() {
-        for (i, &x) in xs.iter().enumerate() {
-            let d = src.depth_m[r * w + i] as f64;
+        let depths = &src.depth_m[r * w..(r + 1) * w];
+        for (i, (&x, &d)) in xs.iter().zip(depths).enumerate() {
+            let d = d as f64;
             let t = if d.is_finite() && d > 0.0 { d } else { SKY_M };
-            if let Some((col, row, depth)) = g.reproject(sc, x, y, t, to_target) {
-                if col > -0.5 && row > -0.5 && col < w_lim && row < h_lim {
-                    let k = nearest(row) * w + nearest(col);
-                    if depth < z[k] {
-                        z[k] = depth;
-                    }
-                }
+            // `Geometry::reproject`, step for step, its `None` folded into `ok`.
+            let (col, row, depth) = g.reproject_unchecked(sc, x, y, t, to_target);
+            let ok = depth > 1e-6 && col > -0.5 && row > -0.5 && col < w_lim && row < h_lim;
+            let k = (nearest_i32(row) as u32)
+                .wrapping_mul(w as u32)
+                .wrapping_add(nearest_i32(col) as u32);
+            cell[i] = if ok { k } else { u32::MAX };
+            landed[i] = depth;
+        }
+        for (&k, &depth) in cell.iter().zip(&landed) {
+            if k != u32::MAX && depth < z[k as usize] {
+                z[k as usize] = depth;
             }
         }
     }
@@ -489,20 +514,23 @@ fn warp_one(g: &Geometry, src: &View, x_t: f64) -> (Vec<f32>, Vec<bool>) {
     let mut fetch = WARP_FETCH.take();
     fetch.clear();
     let from_target = x_t - src.x_m;
+    let mut at = vec![(0f64, 0f64); w];
     for (r, &y) in ys.iter().enumerate() {
-        for (i, &x) in xs.iter().enumerate() {
-            let t = zf[r * w + i];
-            if !t.is_finite() {
+        // As the forward pass: where each pixel lands first, without a branch.
+        for (i, (&x, &t)) in xs.iter().zip(&zf[r * w..(r + 1) * w]).enumerate() {
+            let (col, row, depth) = g.reproject_unchecked(sc, x, y, t, from_target);
+            let ok = t.is_finite() && depth > 1e-6 && g.inside(col, row);
+            let c = (nearest_i32(col) as u32).min(w as u32 - 1);
+            let rr = (nearest_i32(row) as u32).min(h as u32 - 1);
+            cell[i] = if ok { rr * w as u32 + c } else { u32::MAX };
+            landed[i] = depth;
+            at[i] = (col, row);
+        }
+        for (i, ((&s, &depth), &(col, row))) in cell.iter().zip(&landed).zip(&at).enumerate() {
+            if s == u32::MAX {
                 continue;
             }
-            let Some((col, row, depth)) = g.reproject(sc, x, y, t, from_target) else {
-                continue;
-            };
-            if !g.inside(col, row) {
-                continue;
-            }
-            let (c, rr) = (nearest(col).min(w - 1), nearest(row).min(h - 1));
-            let ds = src.depth_m[rr * w + c] as f64;
+            let ds = src.depth_m[s as usize] as f64;
             let ds = if ds.is_finite() && ds > 0.0 {
                 ds
             } else {
@@ -688,8 +716,9 @@ mod tests {
         xs.extend([
             199.5,
             199.49999999999997,
-            4503599627370495.5,
-            4503599627370494.0,
+            2147483646.5,
+            2147483645.5,
+            2147483646.4999998,
         ]);
         let mut s = 7u64;
         for _ in 0..100_000 {
@@ -701,7 +730,7 @@ mod tests {
             xs.extend([x, half, half.next_down(), half.next_up()]);
         }
         for x in xs.into_iter().filter(|&x| x >= -0.5) {
-            assert_eq!(nearest(x), want(x), "{x:e}");
+            assert_eq!(nearest_i32(x) as usize, want(x), "{x:e}");
         }
     }
 
