@@ -286,10 +286,25 @@ impl<'a> Truth<'a> {
         // the call in the loop cost the common pixels their registers.
         let mut pending: Vec<Pending> = Vec::new();
         let mut sky = 0;
+        // Where each pixel of a row lands in each capture, first and without a branch (the
+        // divisions pack; `Geometry::reproject` step for step, its `None` folded into
+        // `landed`), then the tests in pixel order.
+        let deltas = caps.map(|cap| view.x_m - cap.x_m);
+        let mut lands = [vec![(0.0, 0.0, 0.0); w], vec![(0.0, 0.0, 0.0); w]];
+        let mut landed = [vec![false; w], vec![false; w]];
         for (r, &y) in ys.iter().enumerate() {
-            for (i, &x) in xs.iter().enumerate() {
+            let depths = &view.depth_m[r * w..(r + 1) * w];
+            for n in 0..2 {
+                for (i, (&x, &d)) in xs.iter().zip(depths).enumerate() {
+                    let (col, row, depth) =
+                        self.g.reproject_unchecked(sc, x, y, d as f64, deltas[n]);
+                    lands[n][i] = (col, row, depth);
+                    landed[n][i] = depth > 1e-6 && self.g.inside(col, row);
+                }
+            }
+            for (i, &d) in depths.iter().enumerate() {
                 let k = r * w + i;
-                let d = view.depth_m[k] as f64;
+                let d = d as f64;
                 if !(d.is_finite() && d > 0.0) {
                     sky += 1;
                     continue;
@@ -299,13 +314,10 @@ impl<'a> Truth<'a> {
                 let mut unsure = [false; 2];
                 let mut at = [(0.0, 0.0); 2];
                 for (n, cap) in caps.into_iter().enumerate() {
-                    let Some((col, row, depth)) = self.g.reproject(sc, x, y, d, view.x_m - cap.x_m)
-                    else {
-                        continue;
-                    };
-                    if !self.g.inside(col, row) {
+                    if !landed[n][i] {
                         continue;
                     }
+                    let (col, row, depth) = lands[n][i];
                     inside += 1;
                     at[n] = (col, row);
                     if exact_everywhere {
