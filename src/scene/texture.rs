@@ -38,6 +38,38 @@ const SIN_2PI: [f64; 7] = {
     c
 };
 
+/// `sin(2π·u)` for `u` in cycles of magnitude below 2⁵¹: the offset from the
+/// nearest whole cycle (r in [-1/2, 1/2]), folded to |q| ≤ 1/4 through
+/// sin(2π·r) = sin(2π·(±1/2 − r)), then the polynomial. One sine for both
+/// evaluations of the waves, so a point alone and in a batch meet the same
+/// operations.
+#[inline(always)]
+fn sin_cycles(u: f64) -> f64 {
+    let r = u - ((u + ROUND) - ROUND);
+    let q = if r.abs() > 0.25 {
+        0.5f64.copysign(r) - r
+    } else {
+        r
+    };
+    // Estrin's scheme in z = q²: a dependency chain of four multiplications
+    // instead of Horner's seven multiply-adds.
+    let c = &SIN_2PI;
+    let z = q * q;
+    let z2 = z * z;
+    let z4 = z2 * z2;
+    let lo = (c[0] + c[1] * z) + (c[2] + c[3] * z) * z2;
+    let hi = (c[4] + c[5] * z) + c[6] * z2;
+    q * (lo + hi * z4)
+}
+
+/// The ten waves' sines summed as a fixed tree (not a chain of ten dependent
+/// additions), scaled to unit variance (each sine has variance 1/2).
+#[inline(always)]
+fn sum_waves(w: &[f64]) -> f64 {
+    let v = ((w[0] + w[1]) + (w[2] + w[3])) + ((w[4] + w[5]) + (w[6] + w[7])) + (w[8] + w[9]);
+    v * (2.0 / WAVES as f64).sqrt()
+}
+
 #[derive(Debug, Clone, PartialEq)]
 pub struct Texture {
     pub colour: [f32; 3],
@@ -153,29 +185,11 @@ impl Texture {
         let [kx, ky, kz] = &self.cycles_k;
         let mut w = [0.0; LANES];
         for j in 0..LANES {
-            // The argument in cycles, then its offset from the nearest whole
-            // cycle (r in [-1/2, 1/2]), then folded to |q| ≤ 1/4 through
-            // sin(2π·r) = sin(2π·(±1/2 − r)).
+            // The argument in cycles.
             let u = kx[j] * p[0] + ky[j] * p[1] + kz[j] * p[2] + self.cycles_phase[j];
-            let r = u - ((u + ROUND) - ROUND);
-            let q = if r.abs() > 0.25 {
-                0.5f64.copysign(r) - r
-            } else {
-                r
-            };
-            // Estrin's scheme in z = q²: a dependency chain of four
-            // multiplications instead of Horner's seven multiply-adds.
-            let c = &SIN_2PI;
-            let z = q * q;
-            let z2 = z * z;
-            let z4 = z2 * z2;
-            let lo = (c[0] + c[1] * z) + (c[2] + c[3] * z) * z2;
-            let hi = (c[4] + c[5] * z) + c[6] * z2;
-            w[j] = q * (lo + hi * z4);
+            w[j] = sin_cycles(u);
         }
-        // A tree, not a chain of ten dependent additions.
-        let v = ((w[0] + w[1]) + (w[2] + w[3])) + ((w[4] + w[5]) + (w[6] + w[7])) + (w[8] + w[9]);
-        v * (2.0 / WAVES as f64).sqrt()
+        sum_waves(&w)
     }
 
     /// Points [`Texture::patterns_fast`] evaluates together.
@@ -234,27 +248,10 @@ impl Texture {
             for l in 0..BATCH {
                 // Step for step `polynomial_waves`' (see there).
                 let u = kxj * x[l] + kyj * y[l] + kzj * z[l] + phj;
-                let r = u - ((u + ROUND) - ROUND);
-                let q = if r.abs() > 0.25 {
-                    0.5f64.copysign(r) - r
-                } else {
-                    r
-                };
-                let c = &SIN_2PI;
-                let z = q * q;
-                let z2 = z * z;
-                let z4 = z2 * z2;
-                let lo = (c[0] + c[1] * z) + (c[2] + c[3] * z) * z2;
-                let hi = (c[4] + c[5] * z) + c[6] * z2;
-                wj[l] = q * (lo + hi * z4);
+                wj[l] = sin_cycles(u);
             }
         }
-        std::array::from_fn(|l| {
-            let v = ((w[0][l] + w[1][l]) + (w[2][l] + w[3][l]))
-                + ((w[4][l] + w[5][l]) + (w[6][l] + w[7][l]))
-                + (w[8][l] + w[9][l]);
-            v * (2.0 / WAVES as f64).sqrt()
-        })
+        std::array::from_fn(|l| sum_waves(&std::array::from_fn::<f64, WAVES, _>(|j| w[j][l])))
     }
 
     /// [`Texture::albedo`] at [`BATCH`] points, each with the same bits.
