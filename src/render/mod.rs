@@ -462,6 +462,7 @@ const CHUNK_PX: usize = 8;
 /// Textured samples on one texture waiting for it: where they hit (one array
 /// per axis, as [`Texture::albedo_batch`] takes them), the sun's light there
 /// ([`light`]) and where their colours go.
+#[derive(Default)]
 struct Batch<'a> {
     texture: Option<&'a Texture>,
     len: usize,
@@ -470,21 +471,9 @@ struct Batch<'a> {
     slot: [u32; Texture::BATCH],
 }
 
-impl Default for Batch<'_> {
-    fn default() -> Self {
-        Batch {
-            texture: None,
-            len: 0,
-            xyz: [[0.0; Texture::BATCH]; 3],
-            light: [0.0; Texture::BATCH],
-            slot: [0; Texture::BATCH],
-        }
-    }
-}
-
 /// The colours of a run of samples, in the order they were traced. A textured
 /// sample's colour is filled in when its batch is full, when a sample on
-/// another texture comes, or at [`Shades::resolve`]; each the same bits as
+/// another texture comes, or at [`Shades::flush`]; each the same bits as
 /// the sample's own [`Texture::albedo`] would give.
 #[derive(Default)]
 struct Shades<'a> {
@@ -530,8 +519,8 @@ impl<'a> Shades<'a> {
         }
     }
 
-    /// Evaluates the waiting batch (its spare lanes repeat its last point and
-    /// are dropped).
+    /// Evaluates the waiting batch, filling in every colour still waiting (its
+    /// spare lanes repeat its last point and are dropped).
     fn flush(&mut self) {
         let b = &mut self.batch;
         let (Some(texture), n @ 1..) = (b.texture, b.len) else {
@@ -546,11 +535,6 @@ impl<'a> Shades<'a> {
             self.colours[slot as usize] = times(*a, l);
         }
         b.len = 0;
-    }
-
-    /// Fills in every colour still waiting.
-    fn resolve(&mut self) {
-        self.flush();
     }
 }
 
@@ -600,7 +584,7 @@ pub fn render(scene: &Scene, camera: &Camera, opts: &RenderOptions) -> Frame {
                         }
                     }
                 }
-                shades.resolve();
+                shades.flush();
                 // Each pixel's samples summed in the order they were traced.
                 for (i, samples) in pixels.zip(shades.colours.chunks_exact(n * n)) {
                     let mut acc = [0f32; 3];
