@@ -26,6 +26,10 @@ pub struct Geometry {
     pub pitch_rad: f64,
 }
 
+/// A reprojected point is in front of the camera when its depth is over this (metres);
+/// [`Geometry::reproject`] and the passes that fold its test into a row's lanes share it.
+pub(crate) const IN_FRONT_M: f64 = 1e-6;
+
 impl Geometry {
     /// The geometry of `scene`'s survey camera at `width × height`: its intrinsics
     /// (the same at every position along the line) and pitch.
@@ -76,14 +80,14 @@ impl Geometry {
         delta_m: f64,
     ) -> Option<(f64, f64, f64)> {
         let (col, row, depth) = self.reproject_unchecked((s, c), x, y, t, delta_m);
-        if depth <= 1e-6 {
+        if depth <= IN_FRONT_M {
             return None;
         }
         Some((col, row, depth))
     }
 
     /// [`Self::reproject`] without its test of the depth: a column, row and depth whatever
-    /// the depth (meaningless unless it is over 1e-6), computed the same way.
+    /// the depth (meaningless unless it is over [`IN_FRONT_M`]), computed the same way.
     #[inline(always)]
     pub(crate) fn reproject_unchecked(
         &self,
@@ -468,7 +472,7 @@ fn warp_one(g: &Geometry, src: &View, x_t: f64) -> (Vec<f32>, Vec<bool>) {
             let t = if d.is_finite() && d > 0.0 { d } else { SKY_M };
             // `Geometry::reproject`, step for step, its `None` folded into `ok`.
             let (col, row, depth) = g.reproject_unchecked(sc, x, y, t, to_target);
-            let ok = depth > 1e-6 && col > -0.5 && row > -0.5 && col < w_lim && row < h_lim;
+            let ok = depth > IN_FRONT_M && col > -0.5 && row > -0.5 && col < w_lim && row < h_lim;
             let k = (nearest_i32(row) as u32)
                 .wrapping_mul(w as u32)
                 .wrapping_add(nearest_i32(col) as u32);
@@ -519,7 +523,7 @@ fn warp_one(g: &Geometry, src: &View, x_t: f64) -> (Vec<f32>, Vec<bool>) {
         // As the forward pass: where each pixel lands first, without a branch.
         for (i, (&x, &t)) in xs.iter().zip(&zf[r * w..(r + 1) * w]).enumerate() {
             let (col, row, depth) = g.reproject_unchecked(sc, x, y, t, from_target);
-            let ok = t.is_finite() && depth > 1e-6 && g.inside(col, row);
+            let ok = t.is_finite() && depth > IN_FRONT_M && g.inside(col, row);
             let c = (nearest_i32(col) as u32).min(w as u32 - 1);
             let rr = (nearest_i32(row) as u32).min(h as u32 - 1);
             cell[i] = if ok { rr * w as u32 + c } else { u32::MAX };

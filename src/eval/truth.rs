@@ -10,7 +10,7 @@
 //! depend on the pixel grid at occlusion edges (`tests/eval_truth.rs` checks it
 //! against a closed form and against the exact test on every pixel).
 
-use super::recon::{Geometry, View, SKY_M};
+use super::recon::{Geometry, View, IN_FRONT_M, SKY_M};
 use crate::render::{ray_box, ray_ellipsoid};
 use crate::scene::Scene;
 
@@ -299,7 +299,7 @@ impl<'a> Truth<'a> {
                     let (col, row, depth) =
                         self.g.reproject_unchecked(sc, x, y, d as f64, deltas[n]);
                     lands[n][i] = (col, row, depth);
-                    landed[n][i] = depth > 1e-6 && self.g.inside(col, row);
+                    landed[n][i] = depth > IN_FRONT_M && self.g.inside(col, row);
                 }
             }
             for (i, &d) in depths.iter().enumerate() {
