@@ -311,11 +311,61 @@ pub fn span_of(d: &mut [f64], f: impl Fn(f64) -> f64) -> Option<f64> {
     let n = d.len();
     let lo = ((n - 1) as f64 * PARALLAX_PERCENTILES.0).round() as usize;
     let hi = ((n - 1) as f64 * PARALLAX_PERCENTILES.1).round() as usize;
-    let q_hi = *d.select_nth_unstable_by(hi, f64::total_cmp).1;
-    let q_lo = *d[..=hi]
-        .select_nth_unstable_by(lo.min(hi), f64::total_cmp)
-        .1;
+    let (q_lo, q_hi) = select_two(d, lo.min(hi), hi);
     Some(f(q_hi) - f(q_lo))
+}
+
+/// Below this many values [`select_two`] selects directly: its sample costs more than it saves.
+const SELECT_SAMPLED_MIN: usize = 2048;
+
+/// The values of ranks `lo ≤ hi` of `d` in `f64::total_cmp`'s order (0: the smallest), as
+/// `select_nth_unstable_by` gives them; reorders `d`.
+///
+/// The percentiles of a span sit near the ends: one pass keeps the values at or beyond a
+/// threshold taken from a sorted sample, about twice as many as the rank needs, and the rank
+/// is selected among those few. Every value left out lies strictly inside the threshold, so
+/// when the kept ones are at least as many as the rank's distance from its end, the value is
+/// the same; otherwise (a sample unlike the rest) the whole slice is selected, as without
+/// the sample. Equal under `total_cmp` is equal bits, so the same value is the same bits.
+pub fn select_two(d: &mut [f64], lo: usize, hi: usize) -> (f64, f64) {
+    use std::cmp::Ordering::{Greater, Less};
+    let n = d.len();
+    assert!(lo <= hi && hi < n, "ranks {lo} ≤ {hi} of {n} values");
+    // From the top end `hi` is the `above`-th largest; from the bottom `lo` the `below`-th smallest.
+    let (above, below) = (n - hi, lo + 1);
+    if n < SELECT_SAMPLED_MIN || 8 * above.max(below) > n {
+        let q_hi = *d.select_nth_unstable_by(hi, f64::total_cmp).1;
+        let q_lo = *d[..=hi].select_nth_unstable_by(lo, f64::total_cmp).1;
+        return (q_lo, q_hi);
+    }
+    // A sample of 256 to 511 values, evenly strided, sorted.
+    let stride = n / 256;
+    let mut sample: Vec<f64> = d.iter().step_by(stride).copied().collect();
+    sample.sort_unstable_by(f64::total_cmp);
+    let m = sample.len();
+    // Each sampled value stands for `stride` values: aim at twice the count needed, and two
+    // sampled values more.
+    let reach = |count: usize| (2 * count).div_ceil(stride) + 2;
+    let t_hi = sample[m - reach(above).min(m)];
+    let t_lo = sample[reach(below).min(m) - 1];
+    let (mut top, mut bottom) = (Vec::new(), Vec::new());
+    for &x in d.iter() {
+        if x.total_cmp(&t_hi) != Less {
+            top.push(x);
+        }
+        if x.total_cmp(&t_lo) != Greater {
+            bottom.push(x);
+        }
+    }
+    if top.len() < above || bottom.len() < below {
+        let q_hi = *d.select_nth_unstable_by(hi, f64::total_cmp).1;
+        let q_lo = *d[..=hi].select_nth_unstable_by(lo, f64::total_cmp).1;
+        return (q_lo, q_hi);
+    }
+    let k = top.len() - above;
+    let q_hi = *top.select_nth_unstable_by(k, f64::total_cmp).1;
+    let q_lo = *bottom.select_nth_unstable_by(lo, f64::total_cmp).1;
+    (q_lo, q_hi)
 }
 
 /// Fraction of `mid`'s surface samples inside at least one of `a`, `b` that
@@ -470,6 +520,7 @@ impl ClosedLoop {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
 
     fn metres(w: usize, h: usize, d: Vec<f32>) -> DepthImage {
         DepthImage::new(w, h, DepthData::Metres(d)).unwrap()
@@ -501,6 +552,70 @@ mod tests {
             assert_eq!(span_of(&mut sq, f64::sqrt).map(f64::to_bits), want, "{n}");
         }
         assert_eq!(span_of(&mut [], f64::sqrt), None);
+    }
+
+    /// `select_two`'s ranks as two plain selections of the whole slice.
+    fn select_two_plainly(d: &[f64], lo: usize, hi: usize) -> (u64, u64) {
+        let mut v = d.to_vec();
+        let q_hi = *v.select_nth_unstable_by(hi, f64::total_cmp).1;
+        let q_lo = *v.select_nth_unstable_by(lo, f64::total_cmp).1;
+        (q_lo.to_bits(), q_hi.to_bits())
+    }
+
+    proptest! {
+        #[test]
+        fn select_two_is_two_plain_selections(
+            // Few distinct values (ties at the threshold), any bits (NaN, ±0, ±∞), or spread.
+            values in proptest::collection::vec(
+                prop_oneof![
+                    (0u8..6).prop_map(f64::from),
+                    proptest::num::f64::ANY,
+                    0.0f64..1e4,
+                ],
+                0..12_000,
+            ),
+            lo_at in 0.0f64..=1.0,
+            hi_at in 0.0f64..=1.0,
+        ) {
+            let n = values.len();
+            prop_assume!(n > 0);
+            let (a, b) = (((n - 1) as f64 * lo_at) as usize, ((n - 1) as f64 * hi_at) as usize);
+            for (lo, hi) in [
+                (a.min(b), a.max(b)),
+                // The span's own ranks.
+                (
+                    ((n - 1) as f64 * PARALLAX_PERCENTILES.0).round() as usize,
+                    ((n - 1) as f64 * PARALLAX_PERCENTILES.1).round() as usize,
+                ),
+            ] {
+                let mut d = values.clone();
+                let (q_lo, q_hi) = select_two(&mut d, lo, hi);
+                prop_assert_eq!((q_lo.to_bits(), q_hi.to_bits()), select_two_plainly(&values, lo, hi));
+            }
+        }
+    }
+
+    #[test]
+    fn select_two_with_a_sample_unlike_the_rest_still_selects_the_ranks() {
+        // The sampled positions (every `n / 256`-th) hold the largest and the smallest values,
+        // so each threshold keeps too few values and the whole slice is selected.
+        let n = 30_000;
+        let stride = n / 256;
+        let d: Vec<f64> = (0..n)
+            .map(|k| match (k % stride == 0, k % (2 * stride) == 0) {
+                (true, true) => 1e9 + k as f64,
+                (true, false) => -1e9 - k as f64,
+                _ => (k % 1000) as f64,
+            })
+            .collect();
+        let (lo, hi) = (150, n - 151);
+        let want = select_two_plainly(&d, lo, hi);
+        let got = select_two(&mut d.clone(), lo, hi);
+        assert_eq!((got.0.to_bits(), got.1.to_bits()), want);
+        // And the ordinary case: the thresholds keep enough.
+        let d: Vec<f64> = (0..n).map(|k| ((k * 7919) % n) as f64 * 0.5).collect();
+        let got = select_two(&mut d.clone(), lo, hi);
+        assert_eq!((got.0, got.1), (75.0, (n - 151) as f64 * 0.5));
     }
 
     #[test]
