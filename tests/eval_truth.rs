@@ -5,7 +5,7 @@
 //! against the exact test on every pixel of a shipped scene.
 
 use alfd::eval::recon::{Geometry, View};
-use alfd::eval::truth::{captures_within, Truth, BOTH, NEITHER, ONE};
+use alfd::eval::truth::{captures_within, Halves, Truth, BOTH, NEITHER, ONE};
 use alfd::render::{render_depth, survey_camera};
 use alfd::scene::Scene;
 use std::path::Path;
@@ -220,6 +220,53 @@ fn the_depth_map_fast_path_agrees_with_the_exact_test_on_shipped_scenes() {
     let frac = differ as f64 / total as f64;
     eprintln!("fast path against exact: {differ} of {total} pixels differ ({frac:.2e})");
     assert!(frac < 1e-4, "{differ} of {total} pixels differ");
+}
+
+/// A truth keeping the halves of its classifications ([`Halves`]) classifies as one that
+/// keeps none, class for class and to the bit of the parallax span, whichever half it made
+/// and whichever it took: views of `tree` (crowns seen through, pixels the maps leave to the
+/// exact test) against pairs of captures that share one neighbour or both, in an order that
+/// takes some halves back.
+#[test]
+fn kept_halves_classify_as_halves_made_afresh() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/tree.toml");
+    let mut scene = Scene::load(&path).unwrap();
+    scene.survey.width = 100;
+    scene.survey.height = 75;
+    let g = geometry(&scene);
+    let fresh = Truth::new(&scene, g);
+    let halves = Halves::default();
+    let kept = Truth::new(&scene, g).with_halves(&halves);
+    let views: Vec<View> = (0..7)
+        .map(|k| view(&scene, -6.0 + 1.5 * k as f64))
+        .collect();
+    // (view, capture, capture): the second and later ones share halves with earlier ones.
+    let cases = [
+        (2, 0, 4),
+        (2, 0, 5),
+        (2, 1, 4),
+        (3, 0, 4),
+        (2, 0, 4),
+        (3, 1, 6),
+        (2, 1, 5),
+    ];
+    let mut exact_kept = 0;
+    let mut exact_fresh = 0;
+    for (v, a, b) in cases {
+        let want = fresh.classify(&views[v], &views[a], &views[b], false);
+        let got = kept.classify(&views[v], &views[a], &views[b], false);
+        assert_eq!(got.class, want.class, "view {v} between {a} and {b}");
+        assert_eq!(got.counts, want.counts);
+        assert_eq!(
+            got.parallax_span_px.map(f64::to_bits),
+            want.parallax_span_px.map(f64::to_bits)
+        );
+        exact_kept += got.exact_tests;
+        exact_fresh += want.exact_tests;
+    }
+    // The halves taken back were not tested again; the scene needs exact tests at all.
+    assert!(exact_fresh > 0);
+    assert!(exact_kept < exact_fresh, "{exact_kept} of {exact_fresh}");
 }
 
 /// `Truth::occluded` tries a primitive's exact test only where its bounds meet

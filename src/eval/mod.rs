@@ -1135,7 +1135,9 @@ pub fn evaluate_scene(
     }
     let render_s = start.elapsed().as_secs_f64();
     let ranges: Vec<_> = estimates.iter().map(|e| (e.w_min, e.w_max)).collect();
-    let truth = Truth::new(scene, g);
+    // The halves of this scene's classifications, shared by its stages.
+    let halves = truth::Halves::default();
+    let truth = Truth::new(scene, g).with_halves(&halves);
     let mut scorer = Scorer {
         truth,
         views: &views,

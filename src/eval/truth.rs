@@ -103,16 +103,45 @@ enum Seen {
     Unsure,
 }
 
-/// A pixel of [`Truth::classify`] a depth map left undecided for one capture or both.
-struct Pending {
-    k: usize,
-    i: usize,
-    r: usize,
-    d: f64,
-    inside: u8,
-    seen: u8,
-    unsure: [bool; 2],
-    at: [(f64, f64); 2],
+/// What one capture shows of a view, pixel by pixel (bit `r · width + i`): whether the pixel
+/// lands in the capture's frame, and whether the capture sees it there (from its depth map,
+/// settled by the exact test where the map is unsure). The half of a classification that
+/// depends on that capture alone: the view's other neighbour does not change it.
+#[derive(Debug)]
+struct Shown {
+    landed: Vec<u64>,
+    seen: Vec<u64>,
+    exact_tests: usize,
+}
+
+impl Shown {
+    #[inline]
+    fn bit(bits: &[u64], k: usize) -> bool {
+        bits[k / 64] >> (k % 64) & 1 == 1
+    }
+
+    fn bytes(&self) -> usize {
+        (self.landed.len() + self.seen.len()) * 8
+    }
+}
+
+type HalvesByPosition = std::collections::HashMap<(u64, u64), std::sync::Arc<Shown>>;
+
+/// Halves of classifications ([`Shown`]) kept for reuse, keyed by the positions of the view
+/// and the capture along the line: one view is classified against many pairs of captures
+/// (each spacing of the sweeps, each plan of a search), and a capture neighbours the same
+/// view in many of them (about half of `alfd eval`'s halves were made more than once). A
+/// half is a function of the two positions alone, so what is kept, or was dropped at the
+/// limit, changes no result. For one scene's views: a new scene needs its own.
+#[derive(Debug, Default)]
+pub struct Halves {
+    /// Bytes kept, and the halves by (view, capture) position bits.
+    kept: std::sync::Mutex<(usize, HalvesByPosition)>,
+}
+
+impl Halves {
+    /// Bytes of halves kept at most; past it, new halves are used and not kept.
+    pub const BYTES_MAX: usize = 1 << 30;
 }
 
 /// The scene and the survey's camera geometry: everything the truth needs.
@@ -123,6 +152,8 @@ pub struct Truth<'a> {
     /// Lateral offset and height of the survey line.
     pub y_m: f64,
     pub z_m: f64,
+    /// Where the classification keeps its halves for reuse, if anywhere.
+    halves: Option<&'a Halves>,
 }
 
 impl<'a> Truth<'a> {
@@ -132,6 +163,16 @@ impl<'a> Truth<'a> {
             g,
             y_m: scene.survey.y_m,
             z_m: scene.survey.altitude_m,
+            halves: None,
+        }
+    }
+
+    /// The same truth keeping the halves of its classifications in `halves` (the views
+    /// classified must be this scene's: a half is keyed by the positions alone).
+    pub fn with_halves(self, halves: &'a Halves) -> Truth<'a> {
+        Truth {
+            halves: Some(halves),
+            ..self
         }
     }
 
@@ -250,7 +291,7 @@ impl<'a> Truth<'a> {
 
     /// Classifies every pixel of `view` against the captures `a` and `b`.
     /// `exact_everywhere` settles every in-frustum pixel by the exact test
-    /// (the reference the fast path is checked against).
+    /// (the reference the fast path is checked against; its halves are not kept).
     pub fn classify(
         &self,
         view: &View,
@@ -259,111 +300,143 @@ impl<'a> Truth<'a> {
         exact_everywhere: bool,
     ) -> Classification {
         let (w, h) = (self.g.width, self.g.height);
+        let [(sa, tests_a), (sb, tests_b)] =
+            [a, b].map(|cap| self.shown_kept(view, cap, exact_everywhere));
+        let shown = [sa, sb];
         let mut class = vec![SKY; w * h];
         let mut counts = [0usize; 5];
         let mut disparities = Vec::with_capacity(w * h);
-        let mut exact_tests = 0;
         let sc = self.g.pitch_rad.sin_cos();
         let (xs, ys) = self.g.norm_tables();
-        let caps = [a, b];
-        // A pixel's class from how many captures hold it in frame and see it, and where.
-        let mut finish = |k: usize, inside: u8, seen: u8, at: [(f64, f64); 2]| {
-            let c = match (inside, seen) {
-                (0, _) => OUT_OF_BOTH,
-                (_, 2) => BOTH,
-                (_, 1) => ONE,
-                _ => NEITHER,
-            };
-            if c == BOTH {
-                let (dc, dr) = (at[0].0 - at[1].0, at[0].1 - at[1].1);
-                // Squared: the span takes the root of the two it selects.
-                disparities.push(dc * dc + dr * dr);
-            }
-            class[k] = c;
-            counts[c as usize] += 1;
-        };
-        // Pixels a depth map left undecided wait for the exact test until the pass is over:
-        // the call in the loop cost the common pixels their registers.
-        let mut pending: Vec<Pending> = Vec::new();
-        let mut sky = 0;
-        // Where each pixel of a row lands in each capture, first and without a branch (the
-        // divisions pack; `Geometry::reproject` step for step, its `None` folded into
-        // `landed`), then the tests in pixel order.
-        let deltas = caps.map(|cap| view.x_m - cap.x_m);
-        let mut lands = [vec![(0.0, 0.0, 0.0); w], vec![(0.0, 0.0, 0.0); w]];
-        let mut landed = [vec![false; w], vec![false; w]];
+        let deltas = [a, b].map(|cap| view.x_m - cap.x_m);
+        let mut at = [vec![(0.0, 0.0); w], vec![(0.0, 0.0); w]];
         for (r, &y) in ys.iter().enumerate() {
             let depths = &view.depth_m[r * w..(r + 1) * w];
-            for n in 0..2 {
-                for (i, (&x, &d)) in xs.iter().zip(depths).enumerate() {
-                    let (col, row, depth) =
-                        self.g.reproject_unchecked(sc, x, y, d as f64, deltas[n]);
-                    lands[n][i] = (col, row, depth);
-                    landed[n][i] = depth > IN_FRONT_M && self.g.inside(col, row);
+            let row = r * w..(r + 1) * w;
+            // Where a row's pixels land in each capture, for the disparities of the pixels
+            // both see (`Geometry::reproject` step for step; without a branch, so the
+            // divisions pack), only for a row that has one.
+            if row
+                .clone()
+                .any(|k| Shown::bit(&shown[0].seen, k) && Shown::bit(&shown[1].seen, k))
+            {
+                for n in 0..2 {
+                    for (i, (&x, &d)) in xs.iter().zip(depths).enumerate() {
+                        let (col, row, _) =
+                            self.g.reproject_unchecked(sc, x, y, d as f64, deltas[n]);
+                        at[n][i] = (col, row);
+                    }
                 }
             }
             for (i, &d) in depths.iter().enumerate() {
                 let k = r * w + i;
-                let d = d as f64;
                 if !(d.is_finite() && d > 0.0) {
-                    sky += 1;
+                    counts[SKY as usize] += 1;
                     continue;
                 }
-                let mut inside = 0;
-                let mut seen = 0;
-                let mut unsure = [false; 2];
-                let mut at = [(0.0, 0.0); 2];
-                for (n, cap) in caps.into_iter().enumerate() {
-                    if !landed[n][i] {
-                        continue;
-                    }
-                    let (col, row, depth) = lands[n][i];
-                    inside += 1;
-                    at[n] = (col, row);
-                    if exact_everywhere {
-                        unsure[n] = true;
-                        continue;
-                    }
-                    match self.seen_in_map(cap, col, row, depth) {
-                        Seen::Yes => seen += 1,
-                        Seen::Unsure => unsure[n] = true,
-                    }
+                let landed = shown.each_ref().map(|s| Shown::bit(&s.landed, k));
+                let seen = shown.each_ref().map(|s| Shown::bit(&s.seen, k));
+                let c = match (
+                    u8::from(landed[0]) + u8::from(landed[1]),
+                    u8::from(seen[0]) + u8::from(seen[1]),
+                ) {
+                    (0, _) => OUT_OF_BOTH,
+                    (_, 2) => BOTH,
+                    (_, 1) => ONE,
+                    _ => NEITHER,
+                };
+                if c == BOTH {
+                    let (dc, dr) = (at[0][i].0 - at[1][i].0, at[0][i].1 - at[1][i].1);
+                    // Squared: the span takes the root of the two it selects.
+                    disparities.push(dc * dc + dr * dr);
                 }
-                if unsure[0] || unsure[1] {
-                    pending.push(Pending {
-                        k,
-                        i,
-                        r,
-                        d,
-                        inside,
-                        seen,
-                        unsure,
-                        at,
-                    });
-                    continue;
-                }
-                finish(k, inside, seen, at);
+                class[k] = c;
+                counts[c as usize] += 1;
             }
         }
-        for p in pending {
-            let mut seen = p.seen;
-            for (cap, unsure) in caps.into_iter().zip(p.unsure) {
-                if unsure {
-                    exact_tests += 1;
-                    let pt = self.point(view.x_m, p.i, p.r, p.d);
-                    if !self.occluded([cap.x_m, self.y_m, self.z_m], pt) {
-                        seen += 1;
-                    }
-                }
-            }
-            finish(p.k, p.inside, seen, p.at);
-        }
-        counts[SKY as usize] += sky;
         Classification {
             class,
             counts,
             // Selection, O(n): this runs for every view of every sweep.
             parallax_span_px: span_of(&mut disparities, f64::sqrt),
+            exact_tests: tests_a + tests_b,
+        }
+    }
+
+    /// [`Self::shown`], kept in and taken from [`Halves`] when the truth has them, and the
+    /// exact tests made for it here (none for a half taken from them).
+    fn shown_kept(
+        &self,
+        view: &View,
+        cap: &View,
+        exact_everywhere: bool,
+    ) -> (std::sync::Arc<Shown>, usize) {
+        let Some(halves) = self.halves.filter(|_| !exact_everywhere) else {
+            let s = self.shown(view, cap, exact_everywhere);
+            let tests = s.exact_tests;
+            return (std::sync::Arc::new(s), tests);
+        };
+        let key = (view.x_m.to_bits(), cap.x_m.to_bits());
+        if let Some(s) = halves.kept.lock().expect("not poisoned").1.get(&key) {
+            return (s.clone(), 0);
+        }
+        let s = std::sync::Arc::new(self.shown(view, cap, false));
+        let tests = s.exact_tests;
+        let mut kept = halves.kept.lock().expect("not poisoned");
+        if kept.0 + s.bytes() <= Halves::BYTES_MAX {
+            kept.0 += s.bytes();
+            kept.1.insert(key, s.clone());
+        }
+        (s, tests)
+    }
+
+    /// Which of `view`'s surface pixels land in `cap`'s frame and which of those `cap` sees.
+    fn shown(&self, view: &View, cap: &View, exact_everywhere: bool) -> Shown {
+        let (w, h) = (self.g.width, self.g.height);
+        let words = (w * h).div_ceil(64);
+        let (mut landed, mut seen) = (vec![0u64; words], vec![0u64; words]);
+        let sc = self.g.pitch_rad.sin_cos();
+        let (xs, ys) = self.g.norm_tables();
+        let delta = view.x_m - cap.x_m;
+        // Pixels the depth map left undecided wait for the exact test until the pass is over:
+        // the call in the loop cost the common pixels their registers.
+        let mut pending: Vec<(usize, usize, usize, f64)> = Vec::new();
+        let mut lands = vec![(0.0, 0.0, 0.0); w];
+        let mut lands_in = vec![false; w];
+        for (r, &y) in ys.iter().enumerate() {
+            let depths = &view.depth_m[r * w..(r + 1) * w];
+            // Where each pixel of the row lands, first and without a branch (the divisions
+            // pack; `Geometry::reproject` step for step, its `None` folded into `lands_in`),
+            // then the tests in pixel order.
+            for (i, (&x, &d)) in xs.iter().zip(depths).enumerate() {
+                let (col, row, depth) = self.g.reproject_unchecked(sc, x, y, d as f64, delta);
+                lands[i] = (col, row, depth);
+                lands_in[i] = depth > IN_FRONT_M && self.g.inside(col, row);
+            }
+            for (i, &d) in depths.iter().enumerate() {
+                let k = r * w + i;
+                if !(d.is_finite() && d > 0.0 && lands_in[i]) {
+                    continue;
+                }
+                landed[k / 64] |= 1 << (k % 64);
+                let (col, row, depth) = lands[i];
+                if !exact_everywhere && self.seen_in_map(cap, col, row, depth) == Seen::Yes {
+                    seen[k / 64] |= 1 << (k % 64);
+                } else {
+                    pending.push((k, i, r, d as f64));
+                }
+            }
+        }
+        let exact_tests = pending.len();
+        for (k, i, r, d) in pending {
+            let pt = self.point(view.x_m, i, r, d);
+            if !self.occluded([cap.x_m, self.y_m, self.z_m], pt) {
+                seen[k / 64] |= 1 << (k % 64);
+            }
+        }
+        Shown {
+            landed,
+            seen,
             exact_tests,
         }
     }
