@@ -1985,7 +1985,8 @@ mod tests {
     use super::*;
 
     /// Nine views, 0.5 m apart, of a small scene with a block in the middle.
-    fn views() -> (Scene, Geometry, Vec<View>) {
+    /// A small rendered line over a block (also the truth's and the renderers' tests').
+    pub(super) fn views() -> (Scene, Geometry, Vec<View>) {
         let scene = Scene::parse(
             r#"name = "stages"
 description = "a block, small and coarse"

@@ -292,7 +292,38 @@ impl<'a> Truth<'a> {
     /// Classifies every pixel of `view` against the captures `a` and `b`.
     /// `exact_everywhere` settles every in-frustum pixel by the exact test
     /// (the reference the fast path is checked against; its halves are not kept).
+    ///
+    /// Compiled for AVX2 too, taken where the CPU has it (as [`Self::shown`]).
     pub fn classify(
+        &self,
+        view: &View,
+        a: &View,
+        b: &View,
+        exact_everywhere: bool,
+    ) -> Classification {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU has AVX2 (checked just above, cached by std).
+            return unsafe { self.classify_avx2(view, a, b, exact_everywhere) };
+        }
+        self.classify_portable(view, a, b, exact_everywhere)
+    }
+
+    /// [`Self::classify_portable`] compiled for AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn classify_avx2(
+        &self,
+        view: &View,
+        a: &View,
+        b: &View,
+        exact_everywhere: bool,
+    ) -> Classification {
+        self.classify_portable(view, a, b, exact_everywhere)
+    }
+
+    #[inline(always)]
+    fn classify_portable(
         &self,
         view: &View,
         a: &View,
@@ -391,7 +422,26 @@ impl<'a> Truth<'a> {
     }
 
     /// Which of `view`'s surface pixels land in `cap`'s frame and which of those `cap` sees.
+    /// Compiled for AVX2 too, taken where the CPU has it: the same IEEE operations in the same
+    /// order four lanes wide (Rust fuses no multiply-add), so the same bits.
     fn shown(&self, view: &View, cap: &View, exact_everywhere: bool) -> Shown {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU has AVX2 (checked just above, cached by std).
+            return unsafe { self.shown_avx2(view, cap, exact_everywhere) };
+        }
+        self.shown_portable(view, cap, exact_everywhere)
+    }
+
+    /// [`Self::shown_portable`] compiled for AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn shown_avx2(&self, view: &View, cap: &View, exact_everywhere: bool) -> Shown {
+        self.shown_portable(view, cap, exact_everywhere)
+    }
+
+    #[inline(always)]
+    fn shown_portable(&self, view: &View, cap: &View, exact_everywhere: bool) -> Shown {
         let (w, h) = (self.g.width, self.g.height);
         let words = (w * h).div_ceil(64);
         let (mut landed, mut seen) = (vec![0u64; words], vec![0u64; words]);
@@ -608,4 +658,42 @@ pub fn views_per_point_spacing(points: &[Runs], k: u32) -> Option<f64> {
         .iter()
         .map(|iv| point_spacing(iv, k))
         .min_by(f64::total_cmp)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The AVX2 build of the classification and of its halves (taken on this machine when it
+    /// has AVX2) gives the portable build's bits: every half, class and parallax span of the
+    /// test line's views against pairs of its captures, pixels the maps leave to the exact
+    /// test among them.
+    #[test]
+    fn the_avx2_build_classifies_as_the_portable_one() {
+        let (scene, g, views) = crate::eval::tests::views();
+        let truth = Truth::new(&scene, g);
+        let mut exact_tests = 0;
+        for (v, a, b) in [(4, 0, 8), (2, 1, 3), (5, 2, 8), (6, 0, 7)] {
+            let (view, a, b) = (&views[v], &views[a], &views[b]);
+            for cap in [a, b] {
+                let (got, want) = (
+                    truth.shown(view, cap, false),
+                    truth.shown_portable(view, cap, false),
+                );
+                assert_eq!((&got.landed, &got.seen), (&want.landed, &want.seen));
+                assert_eq!(got.exact_tests, want.exact_tests);
+                exact_tests += got.exact_tests;
+            }
+            let (got, want) = (
+                truth.classify(view, a, b, false),
+                truth.classify_portable(view, a, b, false),
+            );
+            assert_eq!(got.class, want.class);
+            assert_eq!(
+                got.parallax_span_px.map(f64::to_bits),
+                want.parallax_span_px.map(f64::to_bits)
+            );
+        }
+        assert!(exact_tests > 0);
+    }
 }
