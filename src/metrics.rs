@@ -5,7 +5,11 @@
 /// PSNR in dB; `+inf` for identical images.
 pub fn psnr(a: &[f32], b: &[f32], peak: f64) -> f64 {
     assert_eq!(a.len(), b.len(), "psnr of images of different sizes");
-    let mse = mse(a, b);
+    psnr_of_mse(mse(a, b), peak)
+}
+
+/// PSNR (dB) of a mean squared error ([`mse`]) at `peak`; infinite for no error.
+pub fn psnr_of_mse(mse: f64, peak: f64) -> f64 {
     if mse == 0.0 {
         f64::INFINITY
     } else {

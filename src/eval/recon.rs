@@ -131,8 +131,9 @@ impl Geometry {
         self.sample_taps(img, Tap::at(col, self.width), Tap::at(row, self.height))
     }
 
-    /// [`Self::sample`] with each axis's taps already found.
-    #[inline]
+    /// [`Self::sample`] with each axis's taps already found. Always inlined, so that the
+    /// warp's AVX2 build compiles it for AVX2 too.
+    #[inline(always)]
     fn sample_taps(&self, img: &[f32], col: Tap, row: Tap) -> f32 {
         let w = self.width as i64;
         let h = self.height as i64;
@@ -184,8 +185,9 @@ impl Tap {
 
     /// [`Tap::at`] at [`Tap::LANES`] positions, each with the same bits: the positions are
     /// the vector's lanes (the pixel by an `i32` truncation, which packs where `i64`'s does
-    /// not, and is the same integer on a clamped axis shorter than 2^31 pixels).
-    #[inline]
+    /// not, and is the same integer on a clamped axis shorter than 2^31 pixels). Always
+    /// inlined, as [`Geometry::sample_taps`].
+    #[inline(always)]
     fn at_lanes(x: [f64; Tap::LANES], n: usize) -> [Tap; Tap::LANES] {
         let hi = (n as i64 - 1) as f64;
         let x = x.map(|x| x.clamp(0.0, hi));
