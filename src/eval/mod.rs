@@ -977,7 +977,7 @@ impl<'t, 's> IntervalTruth<'t, 's> {
                 .iter()
                 .map(|&(k, g)| {
                     g.unwrap_or_else(|| {
-                        let g = Geo::of(&truth.classify(&views[k], &views[i], &views[j], false));
+                        let g = Geo::of(&truth.classify_counts(&views[k], &views[i], &views[j]));
                         classified.push(((i, j, k), g));
                         g
                     })
@@ -1246,7 +1246,7 @@ pub fn evaluate_scene(
             let computed: Vec<((usize, usize, usize), Geo)> = missing
                 .par_iter()
                 .map(|&(i, j, v)| {
-                    let g = Geo::of(&truth.classify(&views[v], &views[i], &views[j], false));
+                    let g = Geo::of(&truth.classify_counts(&views[v], &views[i], &views[j]));
                     ((i, j, v), g)
                 })
                 .collect();

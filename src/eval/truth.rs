@@ -301,12 +301,29 @@ impl<'a> Truth<'a> {
         b: &View,
         exact_everywhere: bool,
     ) -> Classification {
+        self.classify_dispatched(view, a, b, exact_everywhere, true)
+    }
+
+    /// [`Self::classify`] without the class of each pixel (`class` is empty): the counts
+    /// and the parallax span, what the geometry of a view needs.
+    pub fn classify_counts(&self, view: &View, a: &View, b: &View) -> Classification {
+        self.classify_dispatched(view, a, b, false, false)
+    }
+
+    fn classify_dispatched(
+        &self,
+        view: &View,
+        a: &View,
+        b: &View,
+        exact_everywhere: bool,
+        with_class: bool,
+    ) -> Classification {
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU has AVX2 (checked just above, cached by std).
-            return unsafe { self.classify_avx2(view, a, b, exact_everywhere) };
+            return unsafe { self.classify_avx2(view, a, b, exact_everywhere, with_class) };
         }
-        self.classify_portable(view, a, b, exact_everywhere)
+        self.classify_portable(view, a, b, exact_everywhere, with_class)
     }
 
     /// [`Self::classify_portable`] compiled for AVX2.
@@ -318,8 +335,9 @@ impl<'a> Truth<'a> {
         a: &View,
         b: &View,
         exact_everywhere: bool,
+        with_class: bool,
     ) -> Classification {
-        self.classify_portable(view, a, b, exact_everywhere)
+        self.classify_portable(view, a, b, exact_everywhere, with_class)
     }
 
     #[inline(always)]
@@ -329,62 +347,84 @@ impl<'a> Truth<'a> {
         a: &View,
         b: &View,
         exact_everywhere: bool,
+        with_class: bool,
     ) -> Classification {
         let (w, h) = (self.g.width, self.g.height);
         let [(sa, tests_a), (sb, tests_b)] =
             [a, b].map(|cap| self.shown_kept(view, cap, exact_everywhere));
-        let shown = [sa, sb];
-        let mut class = vec![SKY; w * h];
+        // The classes 64 pixels at a time. A half marks only surface pixels, and only those
+        // in its frame as seen: both see the pixel, one does, neither does though it lands in
+        // one's frame or both, or it lands in neither (the rest of the surface).
+        let both: Vec<u64> = sa.seen.iter().zip(&sb.seen).map(|(x, y)| x & y).collect();
+        let ones = |words: &mut dyn Iterator<Item = u64>| -> usize {
+            words.map(|x| x.count_ones() as usize).sum()
+        };
+        let both_n = ones(&mut both.iter().copied());
+        let one_n = ones(&mut sa.seen.iter().zip(&sb.seen).map(|(x, y)| x ^ y));
+        let landed_n = ones(&mut sa.landed.iter().zip(&sb.landed).map(|(x, y)| x | y));
+        let surface_n = view
+            .depth_m
+            .iter()
+            .filter(|d| d.is_finite() && **d > 0.0)
+            .count();
         let mut counts = [0usize; 5];
-        let mut disparities = Vec::with_capacity(w * h);
+        counts[BOTH as usize] = both_n;
+        counts[ONE as usize] = one_n;
+        counts[NEITHER as usize] = landed_n - both_n - one_n;
+        counts[OUT_OF_BOTH as usize] = surface_n - landed_n;
+        counts[SKY as usize] = w * h - surface_n;
+        let class = if with_class {
+            view.depth_m
+                .iter()
+                .enumerate()
+                .map(|(k, d)| {
+                    let bit = |bits: &[u64]| Shown::bit(bits, k);
+                    if !(d.is_finite() && *d > 0.0) {
+                        SKY
+                    } else if bit(&both) {
+                        BOTH
+                    } else if bit(&sa.seen) || bit(&sb.seen) {
+                        ONE
+                    } else if bit(&sa.landed) || bit(&sb.landed) {
+                        NEITHER
+                    } else {
+                        OUT_OF_BOTH
+                    }
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
+        // The disparities of the pixels both see, in pixel order: for a row that has one, each
+        // pixel's squared disparity between where it lands in the two captures
+        // (`Geometry::reproject` step for step; without a branch, so the divisions pack), then
+        // those of the pixels both see written one after the other (every pixel written, the
+        // next slot taken only after one both see: no branch; one slot to spare).
+        let mut disparities = vec![0.0; both_n + 1];
+        let mut taken = 0;
         let sc = self.g.pitch_rad.sin_cos();
         let (xs, ys) = self.g.norm_tables();
-        let deltas = [a, b].map(|cap| view.x_m - cap.x_m);
-        let mut at = [vec![(0.0, 0.0); w], vec![(0.0, 0.0); w]];
+        let [delta_a, delta_b] = [a, b].map(|cap| view.x_m - cap.x_m);
+        let mut squared = vec![0.0; w];
         for (r, &y) in ys.iter().enumerate() {
-            let depths = &view.depth_m[r * w..(r + 1) * w];
             let row = r * w..(r + 1) * w;
-            // Where a row's pixels land in each capture, for the disparities of the pixels
-            // both see (`Geometry::reproject` step for step; without a branch, so the
-            // divisions pack), only for a row that has one.
-            if row
-                .clone()
-                .any(|k| Shown::bit(&shown[0].seen, k) && Shown::bit(&shown[1].seen, k))
-            {
-                for n in 0..2 {
-                    for (i, (&x, &d)) in xs.iter().zip(depths).enumerate() {
-                        let (col, row, _) =
-                            self.g.reproject_unchecked(sc, x, y, d as f64, deltas[n]);
-                        at[n][i] = (col, row);
-                    }
-                }
+            if !row.clone().any(|k| Shown::bit(&both, k)) {
+                continue;
             }
-            for (i, &d) in depths.iter().enumerate() {
-                let k = r * w + i;
-                if !(d.is_finite() && d > 0.0) {
-                    counts[SKY as usize] += 1;
-                    continue;
-                }
-                let landed = shown.each_ref().map(|s| Shown::bit(&s.landed, k));
-                let seen = shown.each_ref().map(|s| Shown::bit(&s.seen, k));
-                let c = match (
-                    u8::from(landed[0]) + u8::from(landed[1]),
-                    u8::from(seen[0]) + u8::from(seen[1]),
-                ) {
-                    (0, _) => OUT_OF_BOTH,
-                    (_, 2) => BOTH,
-                    (_, 1) => ONE,
-                    _ => NEITHER,
-                };
-                if c == BOTH {
-                    let (dc, dr) = (at[0][i].0 - at[1][i].0, at[0][i].1 - at[1][i].1);
-                    // Squared: the span takes the root of the two it selects.
-                    disparities.push(dc * dc + dr * dr);
-                }
-                class[k] = c;
-                counts[c as usize] += 1;
+            let depths = &view.depth_m[row.clone()];
+            for ((sq, &x), &d) in squared.iter_mut().zip(xs.iter()).zip(depths) {
+                let (col_a, row_a, _) = self.g.reproject_unchecked(sc, x, y, d as f64, delta_a);
+                let (col_b, row_b, _) = self.g.reproject_unchecked(sc, x, y, d as f64, delta_b);
+                let (dc, dr) = (col_a - col_b, row_a - row_b);
+                // Squared: the span takes the root of the two it selects.
+                *sq = dc * dc + dr * dr;
+            }
+            for (&sq, k) in squared.iter().zip(row) {
+                disparities[taken] = sq;
+                taken += usize::from(Shown::bit(&both, k));
             }
         }
+        disparities.truncate(taken);
         Classification {
             class,
             counts,
@@ -673,7 +713,9 @@ mod tests {
         let (scene, g, views) = crate::eval::tests::views();
         let truth = Truth::new(&scene, g);
         let mut exact_tests = 0;
-        for (v, a, b) in [(4, 0, 8), (2, 1, 3), (5, 2, 8), (6, 0, 7)] {
+        let mut classes = Vec::new();
+        // Views between their captures, and one beyond both (pixels out of both frames).
+        for (v, a, b) in [(4, 0, 8), (2, 1, 3), (5, 2, 8), (6, 0, 7), (8, 0, 1)] {
             let (view, a, b) = (&views[v], &views[a], &views[b]);
             for cap in [a, b] {
                 let (got, want) = (
@@ -686,14 +728,29 @@ mod tests {
             }
             let (got, want) = (
                 truth.classify(view, a, b, false),
-                truth.classify_portable(view, a, b, false),
+                truth.classify_portable(view, a, b, false, true),
             );
             assert_eq!(got.class, want.class);
             assert_eq!(
                 got.parallax_span_px.map(f64::to_bits),
                 want.parallax_span_px.map(f64::to_bits)
             );
+            // The counts are the classes counted, and the geometry alone is the same.
+            let mut counted = [0usize; 5];
+            for &c in &got.class {
+                counted[c as usize] += 1;
+            }
+            assert_eq!(got.counts, counted);
+            let counts = truth.classify_counts(view, a, b);
+            assert!(counts.class.is_empty());
+            assert_eq!(counts.counts, got.counts);
+            assert_eq!(counts.parallax_span_px, got.parallax_span_px);
+            classes.extend(got.class);
         }
         assert!(exact_tests > 0);
+        // The classes this line has (no sky; neither is `tests/eval_truth.rs`'s street's).
+        for c in [BOTH, ONE, OUT_OF_BOTH] {
+            assert!(classes.contains(&c), "class {c}");
+        }
     }
 }
