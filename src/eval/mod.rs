@@ -15,7 +15,7 @@ pub mod truth;
 
 use crate::core::closedloop;
 use crate::core::{Estimate, Estimator, EstimatorParams, Model};
-use crate::metrics::{psnr_of_mse, ssim_maps};
+use crate::metrics::{mse_with, psnr_of_mse, ssim_maps};
 use crate::render::{render, survey_camera, RenderOptions, SensorModel};
 use crate::scene::{Scene, SceneError};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -633,23 +633,13 @@ fn score_view(
         None
     };
     for (r, img) in images.iter().enumerate() {
-        // The squared errors summed over the image (`metrics::mse`'s sum, in the same order)
-        // and per class, in one pass: the sums are chains of dependent additions, and two
-        // independent chains take the time of one.
         assert_eq!(
             img.len(),
             target.lum.len(),
             "psnr of images of different sizes"
         );
-        let mut all = 0.0f64;
         let mut sums = ClassSums::default();
-        for (p, (&a, &t)) in img.iter().zip(&target.lum).enumerate() {
-            let d = a as f64 - t as f64;
-            let sq = d * d;
-            all += sq;
-            sums.add(c.class[p], sq);
-        }
-        let mse = all / img.len().max(1) as f64;
+        let mse = mse_with(img, &target.lum, |p, sq| sums.add(c.class[p], sq));
         sc.psnr_db[r] = psnr_of_mse(mse, 1.0).min(PSNR_CAP_DB);
         sc.class_sq[r] = sums.0;
         if let Some(map) = maps.as_ref().map(|m| &m[r]) {

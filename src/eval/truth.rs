@@ -111,13 +111,22 @@ enum Seen {
 struct Shown {
     landed: Vec<u64>,
     seen: Vec<u64>,
-    exact_tests: usize,
 }
 
 impl Shown {
     #[inline]
     fn bit(bits: &[u64], k: usize) -> bool {
         bits[k / 64] >> (k % 64) & 1 == 1
+    }
+
+    #[inline]
+    fn set(bits: &mut [u64], k: usize) {
+        bits[k / 64] |= 1 << (k % 64);
+    }
+
+    /// Pixels marked in a run of words.
+    fn count(words: impl Iterator<Item = u64>) -> usize {
+        words.map(|x| x.count_ones() as usize).sum()
     }
 
     fn bytes(&self) -> usize {
@@ -356,12 +365,9 @@ impl<'a> Truth<'a> {
         // in its frame as seen: both see the pixel, one does, neither does though it lands in
         // one's frame or both, or it lands in neither (the rest of the surface).
         let both: Vec<u64> = sa.seen.iter().zip(&sb.seen).map(|(x, y)| x & y).collect();
-        let ones = |words: &mut dyn Iterator<Item = u64>| -> usize {
-            words.map(|x| x.count_ones() as usize).sum()
-        };
-        let both_n = ones(&mut both.iter().copied());
-        let one_n = ones(&mut sa.seen.iter().zip(&sb.seen).map(|(x, y)| x ^ y));
-        let landed_n = ones(&mut sa.landed.iter().zip(&sb.landed).map(|(x, y)| x | y));
+        let both_n = Shown::count(both.iter().copied());
+        let one_n = Shown::count(sa.seen.iter().zip(&sb.seen).map(|(x, y)| x ^ y));
+        let landed_n = Shown::count(sa.landed.iter().zip(&sb.landed).map(|(x, y)| x | y));
         let surface_n = view
             .depth_m
             .iter()
@@ -443,16 +449,15 @@ impl<'a> Truth<'a> {
         exact_everywhere: bool,
     ) -> (std::sync::Arc<Shown>, usize) {
         let Some(halves) = self.halves.filter(|_| !exact_everywhere) else {
-            let s = self.shown(view, cap, exact_everywhere);
-            let tests = s.exact_tests;
+            let (s, tests) = self.shown(view, cap, exact_everywhere);
             return (std::sync::Arc::new(s), tests);
         };
         let key = (view.x_m.to_bits(), cap.x_m.to_bits());
         if let Some(s) = halves.kept.lock().expect("not poisoned").1.get(&key) {
             return (s.clone(), 0);
         }
-        let s = std::sync::Arc::new(self.shown(view, cap, false));
-        let tests = s.exact_tests;
+        let (s, tests) = self.shown(view, cap, false);
+        let s = std::sync::Arc::new(s);
         let mut kept = halves.kept.lock().expect("not poisoned");
         if kept.0 + s.bytes() <= Halves::BYTES_MAX {
             kept.0 += s.bytes();
@@ -461,10 +466,11 @@ impl<'a> Truth<'a> {
         (s, tests)
     }
 
-    /// Which of `view`'s surface pixels land in `cap`'s frame and which of those `cap` sees.
+    /// Which of `view`'s surface pixels land in `cap`'s frame and which of those `cap` sees,
+    /// and how many pixels the exact test settled.
     /// Compiled for AVX2 too, taken where the CPU has it: the same IEEE operations in the same
     /// order four lanes wide (Rust fuses no multiply-add), so the same bits.
-    fn shown(&self, view: &View, cap: &View, exact_everywhere: bool) -> Shown {
+    fn shown(&self, view: &View, cap: &View, exact_everywhere: bool) -> (Shown, usize) {
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU has AVX2 (checked just above, cached by std).
@@ -476,12 +482,12 @@ impl<'a> Truth<'a> {
     /// [`Self::shown_portable`] compiled for AVX2.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    fn shown_avx2(&self, view: &View, cap: &View, exact_everywhere: bool) -> Shown {
+    fn shown_avx2(&self, view: &View, cap: &View, exact_everywhere: bool) -> (Shown, usize) {
         self.shown_portable(view, cap, exact_everywhere)
     }
 
     #[inline(always)]
-    fn shown_portable(&self, view: &View, cap: &View, exact_everywhere: bool) -> Shown {
+    fn shown_portable(&self, view: &View, cap: &View, exact_everywhere: bool) -> (Shown, usize) {
         let (w, h) = (self.g.width, self.g.height);
         let words = (w * h).div_ceil(64);
         let (mut landed, mut seen) = (vec![0u64; words], vec![0u64; words]);
@@ -508,10 +514,10 @@ impl<'a> Truth<'a> {
                 if !(d.is_finite() && d > 0.0 && lands_in[i]) {
                     continue;
                 }
-                landed[k / 64] |= 1 << (k % 64);
+                Shown::set(&mut landed, k);
                 let (col, row, depth) = lands[i];
                 if !exact_everywhere && self.seen_in_map(cap, col, row, depth) == Seen::Yes {
-                    seen[k / 64] |= 1 << (k % 64);
+                    Shown::set(&mut seen, k);
                 } else {
                     pending.push((k, i, r, d as f64));
                 }
@@ -521,14 +527,10 @@ impl<'a> Truth<'a> {
         for (k, i, r, d) in pending {
             let pt = self.point(view.x_m, i, r, d);
             if !self.occluded([cap.x_m, self.y_m, self.z_m], pt) {
-                seen[k / 64] |= 1 << (k % 64);
+                Shown::set(&mut seen, k);
             }
         }
-        Shown {
-            landed,
-            seen,
-            exact_tests,
-        }
+        (Shown { landed, seen }, exact_tests)
     }
 
     /// Whether `p` projects inside the image along track from `x_m`.
@@ -722,9 +724,9 @@ mod tests {
                     truth.shown(view, cap, false),
                     truth.shown_portable(view, cap, false),
                 );
-                assert_eq!((&got.landed, &got.seen), (&want.landed, &want.seen));
-                assert_eq!(got.exact_tests, want.exact_tests);
-                exact_tests += got.exact_tests;
+                assert_eq!((&got.0.landed, &got.0.seen), (&want.0.landed, &want.0.seen));
+                assert_eq!(got.1, want.1);
+                exact_tests += got.1;
             }
             let (got, want) = (
                 truth.classify(view, a, b, false),
