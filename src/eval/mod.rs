@@ -602,6 +602,7 @@ fn w_opt(e: &[(Option<f64>, Option<f64>)], i: usize, j: usize) -> f64 {
 /// renderers, overall and per pixel class of the truth, SSIM when asked.
 fn score_view(
     truth: &Truth,
+    warps: Option<&recon::Warps>,
     views: &[View],
     est: &[(Option<f64>, Option<f64>)],
     (i, j, k): (usize, usize, usize),
@@ -611,7 +612,7 @@ fn score_view(
     let w = w_opt(est, i, j);
     let target = &views[k];
     let x = target.x_m;
-    let images = recon::both(g, &views[i], &views[j], x, w);
+    let images = recon::both_kept(g, &views[i], &views[j], x, w, warps);
     let c = truth.classify(target, &views[i], &views[j], false);
     let mut sc = Score {
         psnr_db: [f64::NAN; 2],
@@ -687,6 +688,8 @@ impl ClassSums {
 
 struct Scorer<'a> {
     truth: Truth<'a>,
+    /// The scene's warps kept for reuse.
+    warps: Option<&'a recon::Warps>,
     views: &'a [View],
     /// `(w_min, w_max)` of each view.
     est: &'a [(Option<f64>, Option<f64>)],
@@ -711,11 +714,12 @@ impl Scorer<'_> {
         tasks.sort_unstable();
         tasks.dedup();
         self.pb.inc_length(tasks.len() as u64);
-        let (truth, views, est, pb) = (&self.truth, self.views, self.est, self.pb);
+        let (truth, warps, views, est, pb) =
+            (&self.truth, self.warps, self.views, self.est, self.pb);
         let scores: Vec<Score> = tasks
             .par_iter()
             .map(|&t| {
-                let s = score_view(truth, views, est, t, with_ssim);
+                let s = score_view(truth, warps, views, est, t, with_ssim);
                 pb.inc(1);
                 s
             })
@@ -1140,8 +1144,10 @@ pub fn evaluate_scene(
     // The halves of this scene's classifications, shared by its stages.
     let halves = truth::Halves::default();
     let truth = Truth::new(scene, g).with_halves(&halves);
+    let warps = recon::Warps::default();
     let mut scorer = Scorer {
         truth,
+        warps: Some(&warps),
         views: &views,
         est: &ranges,
         cache: HashMap::new(),
@@ -2076,14 +2082,16 @@ texture = { colour = [0.7, 0.7, 0.7], contrast = 0.3, cutoff_per_m = 0.5, seed =
         // Counting, not drawn (a hidden bar has no length).
         let pb = ProgressBar::with_draw_target(Some(0), indicatif::ProgressDrawTarget::hidden());
         let truth = Truth::new(&scene, g);
+        let warps = recon::Warps::default();
         let mut scorer = Scorer {
             truth,
+            warps: Some(&warps),
             views: &views,
             est: &ranges,
             cache: HashMap::new(),
             pb: &pb,
         };
-        let direct = |t| score_view(&truth, &views, &ranges, t, true);
+        let direct = |t| score_view(&truth, None, &views, &ranges, t, true);
         let picked = [(2, 6, 4), (2, 6, 3)];
         let expected: Vec<Score> = picked.iter().map(|&t| direct(t)).collect();
         let scores = scorer.scores(&picked, true);
