@@ -298,6 +298,73 @@ impl<'a> Truth<'a> {
         }
     }
 
+    /// [`Self::seen_in_map`] `== Seen::Yes` of every pixel of a row (`[col, row, depth]`, a
+    /// list each), four at a time: the four depths gathered, each test the same IEEE
+    /// operations (the tolerance a multiply and an add, never fused). The same answer where
+    /// the pixel lands in the frame (its column and row within the image): there the
+    /// truncation to `i32` is `as usize`'s; elsewhere the answer is meaningless but every
+    /// index is clamped into the map. Where a row's test waited on its four loads one pixel
+    /// at a time, the loads now start ahead.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    fn seen_in_map_lanes_avx2(&self, cap: &View, [col, row, depth]: [&[f64]; 3], yes: &mut [bool]) {
+        use std::arch::x86_64::*;
+        let (w, h) = (self.g.width, self.g.height);
+        let map = &cap.depth_m[..w * h];
+        assert!(w * h <= i32::MAX as usize, "a map indexed by i32");
+        let n = yes.len().min(col.len()).min(row.len()).min(depth.len());
+        let quads = n / 4 * 4;
+        let zero = _mm_setzero_si128();
+        let (w_last, h_last) = (_mm_set1_epi32(w as i32 - 1), _mm_set1_epi32(h as i32 - 1));
+        let (one, width) = (_mm_set1_epi32(1), _mm_set1_epi32(w as i32));
+        let (sky, inf) = (_mm256_set1_pd(SKY_M), _mm256_set1_pd(f64::INFINITY));
+        let abs_mask = _mm256_castsi256_pd(_mm256_set1_epi64x(i64::MAX));
+        // `tolerance_m`'s 2 % + 5 cm.
+        let (slope, offset) = (_mm256_set1_pd(0.02), _mm256_set1_pd(0.05));
+        for q in (0..quads).step_by(4) {
+            // SAFETY (the three loads): four values from `q..q + 4`, within `n`.
+            let (c, r, dm) = unsafe {
+                (
+                    _mm256_loadu_pd(col[q..q + 4].as_ptr()),
+                    _mm256_loadu_pd(row[q..q + 4].as_ptr()),
+                    _mm256_loadu_pd(depth[q..q + 4].as_ptr()),
+                )
+            };
+            let clamp = |v: __m128i, last: __m128i| _mm_min_epi32(_mm_max_epi32(v, zero), last);
+            let c0 = clamp(_mm256_cvttpd_epi32(c), w_last);
+            let r0 = clamp(_mm256_cvttpd_epi32(r), h_last);
+            let c1 = _mm_min_epi32(_mm_add_epi32(c0, one), w_last);
+            let r1 = _mm_min_epi32(_mm_add_epi32(r0, one), h_last);
+            let (b0, b1) = (_mm_mullo_epi32(r0, width), _mm_mullo_epi32(r1, width));
+            let tol = _mm256_add_pd(_mm256_mul_pd(slope, dm), offset);
+            let mut agree = _mm256_castsi256_pd(_mm256_set1_epi64x(-1));
+            for at in [(b0, c0), (b0, c1), (b1, c0), (b1, c1)] {
+                let idx = _mm_add_epi32(at.0, at.1);
+                // SAFETY: a clamped row times the width plus a clamped column, below `w · h`.
+                let d = _mm256_cvtps_pd(unsafe { _mm_i32gather_ps::<4>(map.as_ptr(), idx) });
+                let usable = _mm256_and_pd(
+                    _mm256_cmp_pd::<_CMP_LT_OQ>(_mm256_and_pd(d, abs_mask), inf),
+                    _mm256_cmp_pd::<_CMP_GT_OQ>(d, _mm256_setzero_pd()),
+                );
+                let d = _mm256_blendv_pd(sky, d, usable);
+                let off = _mm256_and_pd(_mm256_sub_pd(d, dm), abs_mask);
+                agree = _mm256_and_pd(agree, _mm256_cmp_pd::<_CMP_LE_OQ>(off, tol));
+            }
+            let m = _mm256_movemask_pd(agree);
+            for (l, y) in yes[q..q + 4].iter_mut().enumerate() {
+                *y = m >> l & 1 == 1;
+            }
+        }
+        let rest = col[quads..n]
+            .iter()
+            .zip(&row[quads..n])
+            .zip(&depth[quads..n]);
+        for (y, ((&c, &r), &d)) in yes[quads..n].iter_mut().zip(rest) {
+            *y = self.seen_in_map(cap, c, r, d) == Seen::Yes;
+        }
+    }
+
     /// Classifies every pixel of `view` against the captures `a` and `b`.
     /// `exact_everywhere` settles every in-frustum pixel by the exact test
     /// (the reference the fast path is checked against; its halves are not kept).
@@ -479,15 +546,26 @@ impl<'a> Truth<'a> {
         self.shown_portable(view, cap, exact_everywhere)
     }
 
-    /// [`Self::shown_portable`] compiled for AVX2.
+    /// [`Self::shown_with`] compiled for AVX2, a row's depth-map tests four pixels at a time.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     fn shown_avx2(&self, view: &View, cap: &View, exact_everywhere: bool) -> (Shown, usize) {
-        self.shown_portable(view, cap, exact_everywhere)
+        self.shown_with::<true>(view, cap, exact_everywhere)
     }
 
-    #[inline(always)]
     fn shown_portable(&self, view: &View, cap: &View, exact_everywhere: bool) -> (Shown, usize) {
+        self.shown_with::<false>(view, cap, exact_everywhere)
+    }
+
+    /// [`Self::shown`]; `AVX2` only where the CPU has it (the tests by
+    /// [`Self::seen_in_map_lanes_avx2`]).
+    #[inline(always)]
+    fn shown_with<const AVX2: bool>(
+        &self,
+        view: &View,
+        cap: &View,
+        exact_everywhere: bool,
+    ) -> (Shown, usize) {
         let (w, h) = (self.g.width, self.g.height);
         let words = (w * h).div_ceil(64);
         let (mut landed, mut seen) = (vec![0u64; words], vec![0u64; words]);
@@ -497,8 +575,9 @@ impl<'a> Truth<'a> {
         // Pixels the depth map left undecided wait for the exact test until the pass is over:
         // the call in the loop cost the common pixels their registers.
         let mut pending: Vec<(usize, usize, usize, f64)> = Vec::new();
-        let mut lands = vec![(0.0, 0.0, 0.0); w];
+        let (mut cols, mut rows, mut depths_at) = (vec![0.0; w], vec![0.0; w], vec![0.0; w]);
         let mut lands_in = vec![false; w];
+        let mut yes = vec![false; w];
         for (r, &y) in ys.iter().enumerate() {
             let depths = &view.depth_m[r * w..(r + 1) * w];
             // Where each pixel of the row lands, first and without a branch (the divisions
@@ -506,8 +585,13 @@ impl<'a> Truth<'a> {
             // then the tests in pixel order.
             for (i, (&x, &d)) in xs.iter().zip(depths).enumerate() {
                 let (col, row, depth) = self.g.reproject_unchecked(sc, x, y, d as f64, delta);
-                lands[i] = (col, row, depth);
+                (cols[i], rows[i], depths_at[i]) = (col, row, depth);
                 lands_in[i] = depth > IN_FRONT_M && self.g.inside(col, row);
+            }
+            #[cfg(target_arch = "x86_64")]
+            if AVX2 && !exact_everywhere {
+                // SAFETY: `AVX2` is true only in `shown_avx2`, taken where the CPU has it.
+                unsafe { self.seen_in_map_lanes_avx2(cap, [&cols, &rows, &depths_at], &mut yes) };
             }
             for (i, &d) in depths.iter().enumerate() {
                 let k = r * w + i;
@@ -515,8 +599,13 @@ impl<'a> Truth<'a> {
                     continue;
                 }
                 Shown::set(&mut landed, k);
-                let (col, row, depth) = lands[i];
-                if !exact_everywhere && self.seen_in_map(cap, col, row, depth) == Seen::Yes {
+                let seen_here = !exact_everywhere
+                    && if AVX2 {
+                        yes[i]
+                    } else {
+                        self.seen_in_map(cap, cols[i], rows[i], depths_at[i]) == Seen::Yes
+                    };
+                if seen_here {
                     Shown::set(&mut seen, k);
                 } else {
                     pending.push((k, i, r, d as f64));
@@ -705,6 +794,82 @@ pub fn views_per_point_spacing(points: &[Runs], k: u32) -> Option<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The depth-map test four pixels at a time answers as one pixel at a time wherever a
+    /// pixel lands in the frame: a capture's map holding sky, no return, zero and negative
+    /// depths (a 2×2 block of them, read as sky), depths on, inside and beyond the tolerance,
+    /// points as far as sky, positions on every border and between pixels, and a count that
+    /// is not a multiple of four.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn the_depth_map_test_in_lanes_is_the_test_one_pixel_at_a_time() {
+        if !std::arch::is_x86_feature_detected!("avx2") {
+            return;
+        }
+        let (scene, g, views) = crate::eval::tests::views();
+        let truth = Truth::new(&scene, g);
+        let (w, h) = (g.width, g.height);
+        let mut cap = views[4].clone();
+        let odd = [f32::INFINITY, f32::NAN, 0.0, -1.0];
+        for (k, v) in [(0, 0), (5, 1), (w + 3, 2), (w * h - 1, 3)] {
+            cap.depth_m[k] = odd[v];
+        }
+        for (k, &v) in [10 * w + 20, 10 * w + 21, 11 * w + 20, 11 * w + 21]
+            .into_iter()
+            .zip(&odd)
+        {
+            cap.depth_m[k] = v;
+        }
+        let mut seed = 7u64;
+        let mut unit = || {
+            seed = seed
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let (mut cols, mut rows, mut depths) = (Vec::new(), Vec::new(), Vec::new());
+        let edges = [
+            (-0.5, -0.5),
+            (w as f64 - 0.5, h as f64 - 0.5),
+            (20.5, 10.5),
+            (20.0, 10.0),
+        ];
+        for n in 0..4001 {
+            let (col, row) = match edges.get(n % 47) {
+                Some(&at) => at,
+                None => (unit() * w as f64 - 0.5, unit() * h as f64 - 0.5),
+            };
+            let m = cap.depth_m[(row as usize).min(h - 1) * w + (col as usize).min(w - 1)] as f64;
+            let m = if m.is_finite() && m > 0.0 { m } else { SKY_M };
+            let depth = match n % 5 {
+                0 => m,
+                1 => m + 0.999 * tolerance_m(m),
+                2 => m - tolerance_m(m),
+                3 => m * 1.05 + 0.1,
+                _ => SKY_M,
+            };
+            cols.push(col);
+            rows.push(row);
+            depths.push(depth);
+        }
+        let mut yes = vec![false; cols.len()];
+        // SAFETY: the CPU has AVX2 (checked above).
+        unsafe { truth.seen_in_map_lanes_avx2(&cap, [&cols, &rows, &depths], &mut yes) };
+        let (mut answers, mut seen_over_sky) = ([0usize; 2], 0);
+        for (i, &got) in yes.iter().enumerate() {
+            let one = truth.seen_in_map(&cap, cols[i], rows[i], depths[i]) == Seen::Yes;
+            assert_eq!(
+                got, one,
+                "col {} row {} depth {}",
+                cols[i], rows[i], depths[i]
+            );
+            answers[usize::from(one)] += 1;
+            seen_over_sky += usize::from(one && (cols[i], rows[i]) == (20.5, 10.5));
+        }
+        assert!(answers[0] > 0 && answers[1] > 0, "{answers:?}");
+        // Points as far as sky over the block read as sky: seen.
+        assert!(seen_over_sky > 0);
+    }
 
     /// The AVX2 build of the classification and of its halves (taken on this machine when it
     /// has AVX2) gives the portable build's bits: every half, class and parallax span of the
