@@ -820,13 +820,8 @@ mod tests {
         {
             cap.depth_m[k] = v;
         }
-        let mut seed = 7u64;
-        let mut unit = || {
-            seed = seed
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        // Positions spread evenly over the frame (the plastic number's sequence).
+        let frac = |x: f64| x - x.floor();
         let (mut cols, mut rows, mut depths) = (Vec::new(), Vec::new(), Vec::new());
         let edges = [
             (-0.5, -0.5),
@@ -837,7 +832,10 @@ mod tests {
         for n in 0..4001 {
             let (col, row) = match edges.get(n % 47) {
                 Some(&at) => at,
-                None => (unit() * w as f64 - 0.5, unit() * h as f64 - 0.5),
+                None => (
+                    frac(n as f64 * 0.754_877_666_2) * w as f64 - 0.5,
+                    frac(n as f64 * 0.569_840_290_9) * h as f64 - 0.5,
+                ),
             };
             let m = cap.depth_m[(row as usize).min(h - 1) * w + (col as usize).min(w - 1)] as f64;
             let m = if m.is_finite() && m > 0.0 { m } else { SKY_M };
