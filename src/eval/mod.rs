@@ -689,7 +689,7 @@ impl ClassSums {
 struct Scorer<'a> {
     truth: Truth<'a>,
     /// The scene's warps kept for reuse.
-    warps: Option<&'a recon::Warps>,
+    warps: &'a recon::Warps,
     views: &'a [View],
     /// `(w_min, w_max)` of each view.
     est: &'a [(Option<f64>, Option<f64>)],
@@ -719,7 +719,7 @@ impl Scorer<'_> {
         let scores: Vec<Score> = tasks
             .par_iter()
             .map(|&t| {
-                let s = score_view(truth, warps, views, est, t, with_ssim);
+                let s = score_view(truth, Some(warps), views, est, t, with_ssim);
                 pb.inc(1);
                 s
             })
@@ -1147,7 +1147,7 @@ pub fn evaluate_scene(
     let warps = recon::Warps::default();
     let mut scorer = Scorer {
         truth,
-        warps: Some(&warps),
+        warps: &warps,
         views: &views,
         est: &ranges,
         cache: HashMap::new(),
@@ -2085,7 +2085,7 @@ texture = { colour = [0.7, 0.7, 0.7], contrast = 0.3, cutoff_per_m = 0.5, seed =
         let warps = recon::Warps::default();
         let mut scorer = Scorer {
             truth,
-            warps: Some(&warps),
+            warps: &warps,
             views: &views,
             est: &ranges,
             cache: HashMap::new(),

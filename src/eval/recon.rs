@@ -580,7 +580,7 @@ fn warp_one_with<const AVX2: bool>(g: &Geometry, src: &View, x_t: f64) -> (Vec<f
             let agree = if depth > 0.5 * SKY_M {
                 ds > 0.5 * SKY_M
             } else {
-                (ds - depth).abs() <= 0.02 * depth + 0.05
+                (ds - depth).abs() <= crate::core::closedloop::seen_tolerance_m(depth)
             };
             fetch.push_if(agree, r * w + i, col, row);
         }

@@ -54,7 +54,7 @@ pub const CLASS_NAMES: [&str; 3] = ["both", "one", "neither"];
 /// point: the closed loop's (`core::closedloop`), so truth and prediction
 /// measure the same quantity.
 pub use crate::core::closedloop::PARALLAX_PERCENTILES;
-use crate::core::closedloop::{seen_tolerance_m as tolerance_m, span_of};
+use crate::core::closedloop::{self, seen_tolerance_m as tolerance_m, span_of};
 
 /// Which captures see each pixel of an in-between view, and the parallax
 /// between the captures.
@@ -320,8 +320,11 @@ impl<'a> Truth<'a> {
         let (one, width) = (_mm_set1_epi32(1), _mm_set1_epi32(w as i32));
         let (sky, inf) = (_mm256_set1_pd(SKY_M), _mm256_set1_pd(f64::INFINITY));
         let abs_mask = _mm256_castsi256_pd(_mm256_set1_epi64x(i64::MAX));
-        // `tolerance_m`'s 2 % + 5 cm.
-        let (slope, offset) = (_mm256_set1_pd(0.02), _mm256_set1_pd(0.05));
+        // `tolerance_m`, its multiply and add.
+        let (slope, offset) = (
+            _mm256_set1_pd(closedloop::SEEN_TOLERANCE_SHARE),
+            _mm256_set1_pd(closedloop::SEEN_TOLERANCE_M),
+        );
         for q in (0..quads).step_by(4) {
             // SAFETY (the three loads): four values from `q..q + 4`, within `n`.
             let (c, r, dm) = unsafe {

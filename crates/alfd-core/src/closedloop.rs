@@ -17,8 +17,13 @@ pub const PARALLAX_PERCENTILES: (f64, f64) = (0.005, 0.995);
 /// the evaluation's truth.
 #[inline]
 pub fn seen_tolerance_m(depth_m: f64) -> f64 {
-    0.02 * depth_m + 0.05
+    SEEN_TOLERANCE_SHARE * depth_m + SEEN_TOLERANCE_M
 }
+
+/// [`seen_tolerance_m`]'s share of the depth, and its constant part (metres): for code
+/// that applies it several depths at once.
+pub const SEEN_TOLERANCE_SHARE: f64 = 0.02;
+pub const SEEN_TOLERANCE_M: f64 = 0.05;
 
 /// Frames kept since the last capture; beyond it every other one is dropped
 /// (the in-between frame is then the nearest kept one to the middle).
